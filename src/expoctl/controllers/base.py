@@ -1,0 +1,43 @@
+"""The one interface every gain/exposure controller implements.
+
+A controller sees exactly what a real one sees: the 8-bit RGB image the camera delivered at frame t and the
+settings that frame was captured with (what the controller commanded earlier). It returns the settings it
+commands next; the camera applies them at frame t+1 (one frame of actuation latency, enforced by the caller,
+`expoctl.rig.closed_loop`). Controllers with extra internal latency (AG+AE) model it themselves.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from expoctl.camera.ranges import clamp_settings
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Camera settings: analogue gain in dB and exposure time in microseconds."""
+
+    gain_db: float
+    exposure_us: float
+
+    def clamped(self) -> "Settings":
+        g, e = clamp_settings(self.gain_db, self.exposure_us)
+        return Settings(g, e)
+
+
+class Controller(ABC):
+    """Closed-loop gain/exposure controller."""
+
+    #: short name used in reports and metrics.json (agae, shin, shim, mean_intensity, fixed, learned, oracle)
+    name: str = "controller"
+
+    @abstractmethod
+    def reset(self, initial: Settings) -> None:
+        """Start a new sequence; `initial` are the settings of the first frame."""
+
+    @abstractmethod
+    def update(self, image: np.ndarray, applied: Settings) -> Settings:
+        """Take frame t (H×W×3 uint8 RGB) and the settings it was captured with; return the settings for t+1."""
