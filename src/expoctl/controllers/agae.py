@@ -1,0 +1,150 @@
+"""AG+AE: a model of the FLIR Blackfly S (Spinnaker) built-in auto gain + auto exposure (controllers.md §1).
+
+Loop, per frame (controllers.md §1 "Simulator model", [our assumption, to be calibrated]):
+1. Meter m = mean of the *linear* image (camera response inverted) over the metering region (average / spot ≈ 3 % /
+   partial ≈ 11 %, centred, or a fractional ROI).
+2. The frame was shot with a known product P_f = t·10^(g/20) (the camera knows its own settings, like chunk data),
+   so the product that would have hit the target is ln P* = ln P_f + ln(target·2^EVcomp / m).
+3. The internal command moves towards it: ln P ← ln P + (1 − damping)·(ln P* − ln P), with the step clipped to
+   ±max_step_ev per frame. Using the frame's own P_f (not the last command) keeps the loop from oscillating through
+   its latency; in steady state this is exactly the spec's ln P ← ln P + (1 − damping)·ln(target/m).
+   A saturated frame reads m ≈ 1, so the error is under-estimated and the step limit sets the pace at tunnel exits
+   (the authors' recordings changed P by at most ~0.5 EV/frame).
+4. Split P exposure-first ("Gain" priority in Spinnaker's misleading naming): gain stays at its lower limit until
+   exposure reaches its upper limit (30 ms), then gain rises. The alternative "gain_first" priority holds exposure at
+   `gain_first_exposure_us` (Spinnaker default 5 ms) and moves gain first.
+5. Latency: the caller applies our output at t+1 (actuation delay); on top of it the AE computes from the *previous*
+   frame (`internal_latency_frames`, default 1), so a change seen at frame t first affects frame t+2.
+Black frames are metered with a floor (m ≥ `min_linear_mean`), so the error stays finite and the step limit applies.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.metrics import METERING_AREA_FRACTION, ResponseInverse, metered_linear_mean, srgb_uint8_to_linear
+from expoctl.controllers.params import check_params, require
+
+_DB_PER_LN = 20.0 / math.log(10.0)  # gain dB per natural-log unit of linear gain
+
+DEFAULTS: dict = {
+    "target_grey_pct": 18.0,  # linear, % of full scale; 18 % ≈ code 118 through sRGB [our assumption; read it back]
+    "ev_compensation": 0.0,  # EV, Spinnaker range −3 … +3
+    "damping": 0.2,  # AutoExposureControlLoopDamping, SDK-header default (web page says 0.5)
+    "max_step_ev": 0.5,  # per-frame limit on the change of t·gain (authors' recordings: ≤ ~0.5 EV/frame)
+    "metering_mode": "average",  # average | spot | partial
+    "roi": None,  # optional [x0, y0, x1, y1] fractions of width/height; overrides metering_mode
+    "priority": "exposure_first",  # exposure_first (Spinnaker "Gain") | gain_first (Spinnaker "ExposureTime")
+    "gain_first_exposure_us": 5000.0,
+    "exposure_lower_us": EXPOSURE_US_MIN,
+    "exposure_upper_us": EXPOSURE_US_MAX,
+    "gain_lower_db": GAIN_DB_MIN,
+    "gain_upper_db": GAIN_DB_MAX,
+    "internal_latency_frames": 1,  # AE computes from the frame before the newest one
+    "min_linear_mean": 1e-4,  # metering floor for black frames (keeps the log error finite)
+}
+
+
+def _validate(p: dict) -> None:
+    k = "controllers.agae."
+    require(0.0 < p["target_grey_pct"] < 100.0, k + "target_grey_pct", "must be in (0, 100) percent of full scale")
+    require(-3.0 <= p["ev_compensation"] <= 3.0, k + "ev_compensation", "must be in [-3, 3] EV")
+    require(0.0 <= p["damping"] < 1.0, k + "damping", "must be in [0, 1)")
+    require(p["max_step_ev"] > 0.0, k + "max_step_ev", "must be > 0")
+    require(p["metering_mode"] in METERING_AREA_FRACTION, k + "metering_mode", f"must be one of {sorted(METERING_AREA_FRACTION)}")
+    roi = p["roi"]
+    if roi is not None:
+        ok = isinstance(roi, (list, tuple)) and len(roi) == 4
+        ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in roi)
+        ok = ok and 0.0 <= roi[0] < roi[2] <= 1.0 and 0.0 <= roi[1] < roi[3] <= 1.0
+        require(ok, k + "roi", "must be null or [x0, y0, x1, y1] with 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1")
+    require(p["priority"] in ("exposure_first", "gain_first"), k + "priority", "must be exposure_first or gain_first")
+    require(
+        EXPOSURE_US_MIN <= p["exposure_lower_us"] <= p["exposure_upper_us"] <= EXPOSURE_US_MAX,
+        k + "exposure_upper_us",
+        f"need {EXPOSURE_US_MIN} <= exposure_lower_us <= exposure_upper_us <= {EXPOSURE_US_MAX}",
+    )
+    require(
+        GAIN_DB_MIN <= p["gain_lower_db"] <= p["gain_upper_db"] <= GAIN_DB_MAX,
+        k + "gain_upper_db",
+        f"need {GAIN_DB_MIN} <= gain_lower_db <= gain_upper_db <= {GAIN_DB_MAX}",
+    )
+    require(
+        p["exposure_lower_us"] <= p["gain_first_exposure_us"] <= p["exposure_upper_us"],
+        k + "gain_first_exposure_us",
+        "must lie within [exposure_lower_us, exposure_upper_us]",
+    )
+    require(0 <= p["internal_latency_frames"] <= 10, k + "internal_latency_frames", "must be an integer in [0, 10]")
+    require(0.0 < p["min_linear_mean"] < 1.0, k + "min_linear_mean", "must be in (0, 1)")
+
+
+class AgAeController(Controller):
+    """Model of the Blackfly S AG+AE loop. `response_inverse` maps uint8 images to linear [0, 1] (default sRGB)."""
+
+    name = "agae"
+
+    def __init__(self, params: dict | None = None, response_inverse: ResponseInverse | None = None):
+        self.params = check_params("controllers.agae", DEFAULTS, params)
+        _validate(self.params)
+        p = self.params
+        self.response_inverse = response_inverse if response_inverse is not None else srgb_uint8_to_linear
+        self.target_linear = p["target_grey_pct"] / 100.0 * 2.0 ** p["ev_compensation"]
+        self._max_step_ln = p["max_step_ev"] * math.log(2.0)
+        # achievable range of ln P (P in µs × linear gain); the command never winds up beyond it
+        self._ln_p_min = math.log(p["exposure_lower_us"]) + p["gain_lower_db"] / _DB_PER_LN
+        self._ln_p_max = math.log(p["exposure_upper_us"]) + p["gain_upper_db"] / _DB_PER_LN
+        self.reset(Settings(p["gain_lower_db"], p["exposure_upper_us"]))
+
+    # ------------------------------------------------------------------------------------------------ public API
+    def reset(self, initial: Settings) -> None:
+        s = initial.clamped()
+        self._ln_p = float(np.clip(self._ln_product(s), self._ln_p_min, self._ln_p_max))
+        self._pending: deque[tuple[float, float]] = deque()  # (ln P*, frame) measured but not yet acted on
+
+    def update(self, image: np.ndarray, applied: Settings) -> Settings:
+        self._pending.append(self._ideal_ln_product(image, applied))
+        if len(self._pending) > self.params["internal_latency_frames"]:
+            ln_target = self._pending.popleft()
+            step = (1.0 - self.params["damping"]) * (ln_target - self._ln_p)
+            step = float(np.clip(step, -self._max_step_ln, self._max_step_ln))
+            self._ln_p = float(np.clip(self._ln_p + step, self._ln_p_min, self._ln_p_max))
+        return self.split(self._ln_p)
+
+    # ------------------------------------------------------------------------------------------------ internals
+    @staticmethod
+    def _ln_product(s: Settings) -> float:
+        return math.log(s.exposure_us) + s.gain_db / _DB_PER_LN
+
+    def metered_mean(self, image: np.ndarray) -> float:
+        """Linear metered mean in [0, 1], floored at `min_linear_mean`."""
+        p = self.params
+        m = metered_linear_mean(image, self.response_inverse, p["metering_mode"], p["roi"])
+        return max(m, p["min_linear_mean"])
+
+    def _ideal_ln_product(self, image: np.ndarray, applied: Settings) -> float:
+        s = applied.clamped()
+        return self._ln_product(s) + math.log(self.target_linear / self.metered_mean(image))
+
+    def split(self, ln_p: float) -> Settings:
+        """Distribute the product over exposure and gain according to the priority, within the limits."""
+        p = self.params
+        t_lo, t_hi = p["exposure_lower_us"], p["exposure_upper_us"]
+        g_lo, g_hi = p["gain_lower_db"], p["gain_upper_db"]
+        if p["priority"] == "exposure_first":
+            t = float(np.clip(math.exp(ln_p - g_lo / _DB_PER_LN), t_lo, t_hi))
+        else:  # gain_first: exposure parked at gain_first_exposure_us; it moves only when gain is at a limit
+            t_fix = p["gain_first_exposure_us"]
+            g_needed = (ln_p - math.log(t_fix)) * _DB_PER_LN
+            if g_needed > g_hi:
+                t = float(np.clip(math.exp(ln_p - g_hi / _DB_PER_LN), t_fix, t_hi))
+            elif g_needed < g_lo:
+                t = float(np.clip(math.exp(ln_p - g_lo / _DB_PER_LN), t_lo, t_fix))
+            else:
+                t = t_fix
+        g = float(np.clip((ln_p - math.log(t)) * _DB_PER_LN, g_lo, g_hi))
+        return Settings(g, t).clamped()

@@ -1,0 +1,38 @@
+"""Name → controller factory. `make_controller("agae", cfg["controllers"]["agae"])`.
+
+`CONTROLLERS` is a plain dict so other modules (learned, oracle) can add themselves with `register(...)` without
+editing this file. A factory takes the controller's own config section (a dict, possibly empty) and returns a
+fresh Controller; unknown keys and bad values raise ConfigError("controllers.<name>.<key>", ...).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from expoctl.controllers.base import Controller
+from expoctl.errors import ConfigError
+
+ControllerFactory = Callable[[dict], Controller]
+
+
+def _agae(params: dict) -> Controller:
+    from expoctl.controllers.agae import AgAeController
+
+    return AgAeController(params)
+
+
+CONTROLLERS: dict[str, ControllerFactory] = {
+    "agae": _agae,
+}
+
+
+def register(name: str, factory: ControllerFactory) -> None:
+    """Add (or replace) a controller factory under `name`."""
+    CONTROLLERS[name] = factory
+
+
+def make_controller(name: str, params: dict | None = None) -> Controller:
+    """Build the controller called `name` from its config section `params` (None = all defaults)."""
+    if name not in CONTROLLERS:
+        raise ConfigError("controllers", f"unknown controller {name!r} (known: {', '.join(sorted(CONTROLLERS))})")
+    return CONTROLLERS[name]({} if params is None else params)

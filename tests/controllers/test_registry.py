@@ -1,0 +1,58 @@
+"""Registry: names build the right controllers from their config sections; the YAML defaults are valid."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.registry import CONTROLLERS, make_controller, register
+from expoctl.errors import ConfigError
+
+CONF = Path(__file__).resolve().parents[2] / "conf" / "controllers" / "default.yaml"
+
+
+def _conf() -> dict:
+    return yaml.safe_load(CONF.read_text())
+
+
+@pytest.mark.parametrize("name", sorted(CONTROLLERS))
+def test_every_registered_controller_builds_from_the_yaml_and_runs(name):
+    cfg = _conf()
+    ctrl = make_controller(name, cfg.get(name, {}))
+    assert isinstance(ctrl, Controller) and ctrl.name == name
+    ctrl.reset(Settings(0.0, 5000.0))
+    s = Settings(0.0, 5000.0)
+    for code in (0, 255, 128):
+        s = ctrl.update(np.full((32, 32, 3), code, np.uint8), s)
+        assert np.isfinite([s.gain_db, s.exposure_us]).all() and s == s.clamped()
+
+
+def test_yaml_sections_match_registered_names():
+    assert set(_conf()) <= set(CONTROLLERS)
+
+
+def test_unknown_name_and_unknown_key():
+    with pytest.raises(ConfigError):
+        make_controller("autoexposure", {})
+    with pytest.raises(ConfigError) as e:
+        make_controller("agae", {"bogus": 1})
+    assert e.value.key == "controllers.agae.bogus"
+
+
+def test_register_extends_the_registry():
+    class Hold(Controller):
+        name = "hold_test"
+
+        def reset(self, initial):
+            self.s = initial
+
+        def update(self, image, applied):
+            return self.s
+
+    register("hold_test", lambda params: Hold())
+    try:
+        assert make_controller("hold_test").name == "hold_test"
+    finally:
+        del CONTROLLERS["hold_test"]
