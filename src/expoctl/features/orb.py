@@ -1,0 +1,135 @@
+"""ORB front end (OpenCV), as the paper's authors ran it.
+
+The authors converted each image to 512×384 grey and used two ORB detectors: one with nfeatures = 10000 whose
+keypoint count is the image's feature count (M_feat), and one with nfeatures = 2000 whose keypoints are described
+and matched (M_match, NFM). Matching is brute-force Hamming with cross-check (mutual nearest neighbours), then
+fundamental-matrix RANSAC (verify.py, 3 px at the working size, confidence 0.99).
+
+Both detectors run on the same resized image. Resizing both images of a pair by the same factors keeps the epipolar
+geometry valid (a scaling is a projective map), so verifying at the working size is sound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+
+from expoctl.errors import ConfigError
+from expoctl.features.verify import VerifyParams, count_fundamental_inliers
+
+
+@dataclass(frozen=True)
+class OrbParams:
+    working_size: tuple[int, int] | None = (512, 384)  # (width, height) px images are resized to; None = native
+    count_nfeatures: int = 10000  # detector whose keypoint count is the feature count
+    match_nfeatures: int = 2000  # detector whose keypoints are described and matched
+    scale_factor: float = 1.2  # OpenCV defaults from here on
+    n_levels: int = 8
+    edge_threshold: int = 31
+    patch_size: int = 31
+    fast_threshold: int = 20
+    ransac_threshold_px: float = 3.0
+    ransac_confidence: float = 0.99
+    ransac_max_iters: int = 1000
+    ransac_method: str = "ransac"
+
+    @classmethod
+    def from_dict(cls, d: dict | None, key: str = "features.orb") -> "OrbParams":
+        """Build from a config dict (missing keys take the defaults above); raise ConfigError on bad values."""
+        d = dict(d or {})
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ConfigError(f"{key}.{unknown[0]}", f"unknown key (known: {', '.join(sorted(names))})")
+        if "working_size" in d and d["working_size"] is not None:
+            ws = d["working_size"]
+            if not (isinstance(ws, (list, tuple)) and len(ws) == 2 and all(_is_int(v) and v >= 32 for v in ws)):
+                raise ConfigError(f"{key}.working_size", f"must be [width, height] with both >= 32, or null; got {ws!r}")
+            d["working_size"] = (int(ws[0]), int(ws[1]))
+        for name in ("count_nfeatures", "match_nfeatures", "n_levels", "edge_threshold", "patch_size", "ransac_max_iters"):
+            if name in d and not (_is_int(d[name]) and d[name] >= 1):
+                raise ConfigError(f"{key}.{name}", f"must be a positive integer, got {d[name]!r}")
+        if "fast_threshold" in d and not (_is_int(d["fast_threshold"]) and 0 <= d["fast_threshold"] <= 255):
+            raise ConfigError(f"{key}.fast_threshold", f"must be an integer in [0, 255], got {d['fast_threshold']!r}")
+        if "scale_factor" in d and not (isinstance(d["scale_factor"], (int, float)) and d["scale_factor"] > 1):
+            raise ConfigError(f"{key}.scale_factor", f"must be > 1, got {d['scale_factor']!r}")
+        params = cls(**d)
+        params.verify_params()  # validates the RANSAC keys
+        return params
+
+    def verify_params(self) -> VerifyParams:
+        return VerifyParams(
+            threshold_px=float(self.ransac_threshold_px),
+            confidence=float(self.ransac_confidence),
+            max_iters=int(self.ransac_max_iters),
+            method=self.ransac_method,
+        )
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+@dataclass(frozen=True)
+class OrbFeatures:
+    """One image's extraction: the count detector's keypoint count and the match detector's keypoints."""
+
+    n_count: int
+    points_xy: np.ndarray  # (N, 2) float32 keypoint positions at the working size
+    descriptors: np.ndarray  # (N, 32) uint8 binary descriptors
+
+
+class OrbFrontEnd:
+    """FrontEnd (see frontend.py) using OpenCV ORB; `params` is an OrbParams or a config dict."""
+
+    name = "orb"
+
+    def __init__(self, params: OrbParams | dict | None = None):
+        self.params = params if isinstance(params, OrbParams) else OrbParams.from_dict(params)
+        self._verify = self.params.verify_params()
+        p = self.params
+        common = dict(
+            scaleFactor=float(p.scale_factor),
+            nlevels=int(p.n_levels),
+            edgeThreshold=int(p.edge_threshold),
+            patchSize=int(p.patch_size),
+            fastThreshold=int(p.fast_threshold),
+        )
+        self._count_orb = cv2.ORB_create(nfeatures=int(p.count_nfeatures), **common)
+        self._match_orb = cv2.ORB_create(nfeatures=int(p.match_nfeatures), **common)
+        self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+
+    def prepare(self, grey: np.ndarray) -> np.ndarray:
+        """The image the detectors see: grey resized to the working size (area averaging when shrinking)."""
+        if grey.ndim != 2 or grey.dtype != np.uint8:
+            raise ValueError(f"ORB expects an H×W uint8 grey image, got shape {grey.shape} dtype {grey.dtype}")
+        ws = self.params.working_size
+        if ws is None or (grey.shape[1], grey.shape[0]) == ws:
+            return grey
+        shrinking = ws[0] * ws[1] < grey.shape[0] * grey.shape[1]
+        return cv2.resize(grey, ws, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+
+    def extract(self, grey: np.ndarray) -> OrbFeatures:
+        img = self.prepare(grey)
+        n_count = len(self._count_orb.detect(img, None))
+        keypoints, descriptors = self._match_orb.detectAndCompute(img, None)
+        if descriptors is None or len(keypoints) == 0:
+            return OrbFeatures(n_count, np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8))
+        points = np.array([kp.pt for kp in keypoints], dtype=np.float32).reshape(-1, 2)
+        return OrbFeatures(n_count, points, descriptors)
+
+    def n_features(self, extracted: OrbFeatures) -> int:
+        return int(extracted.n_count)
+
+    def match(self, prev: OrbFeatures, cur: OrbFeatures, seed: int) -> tuple[int, int]:
+        if len(prev.descriptors) == 0 or len(cur.descriptors) == 0:
+            return 0, 0
+        matches = self._matcher.match(prev.descriptors, cur.descriptors)
+        if not matches:
+            return 0, 0
+        idx_prev = np.fromiter((m.queryIdx for m in matches), dtype=np.int64, count=len(matches))
+        idx_cur = np.fromiter((m.trainIdx for m in matches), dtype=np.int64, count=len(matches))
+        n_inliers = count_fundamental_inliers(prev.points_xy[idx_prev], cur.points_xy[idx_cur], seed, self._verify)
+        return len(matches), n_inliers

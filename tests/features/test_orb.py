@@ -1,0 +1,124 @@
+"""ORB front end on real photographs (scikit-image sample data, bundled with the package)."""
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+
+from expoctl.errors import ConfigError
+from expoctl.features.frontend import FrontEnd
+from expoctl.features.orb import OrbFrontEnd, OrbParams
+
+
+def _grey(rgb):
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+
+
+@pytest.fixture(scope="module")
+def stereo():
+    left, right, _ = skimage.data.stereo_motorcycle()  # a real rectified stereo pair, 500×741
+    return _grey(left), _grey(right)
+
+
+@pytest.fixture(scope="module")
+def orb():
+    return OrbFrontEnd({})
+
+
+def test_conforms_to_the_front_end_interface(orb):
+    for attr in ("name", "extract", "n_features", "match"):
+        assert hasattr(orb, attr), attr
+    _typed: FrontEnd = orb  # static conformance (FrontEnd is a typing.Protocol, not runtime-checkable)
+    assert orb.name == "orb"
+
+
+def test_two_detectors_count_and_match_caps(stereo):
+    small = OrbFrontEnd({"count_nfeatures": 300, "match_nfeatures": 100})
+    feats = small.extract(stereo[0])
+    # a textured 500×741 photo has far more than 300 FAST corners, so both detectors fill their caps
+    assert small.n_features(feats) == 300
+    assert feats.points_xy.shape == (100, 2) and feats.descriptors.shape == (100, 32)
+
+
+def test_resizes_to_the_working_size(stereo, orb):
+    feats = orb.extract(stereo[0])
+    assert orb.prepare(stereo[0]).shape == (384, 512)
+    assert feats.points_xy[:, 0].max() < 512 and feats.points_xy[:, 1].max() < 384
+    native = OrbFrontEnd({"working_size": None})
+    assert native.prepare(stereo[0]) is stereo[0]
+
+
+def test_real_stereo_pair_has_mostly_inlier_matches(stereo, orb):
+    a, b = orb.extract(stereo[0]), orb.extract(stereo[1])
+    n_matches, n_inliers = orb.match(a, b, seed=0)
+    # cross-check keeps mutual nearest neighbours only; between the two views of one static scene most are right
+    assert 500 <= n_matches <= 2000
+    assert n_inliers >= 0.6 * n_matches
+
+
+def test_unrelated_images_have_few_inliers(orb):
+    a = orb.extract(skimage.data.camera())
+    b = orb.extract(_grey(skimage.data.coffee()))
+    n_matches, n_inliers = orb.match(a, b, seed=0)
+    assert n_matches > 100
+    # matches between unrelated photos are random; the best F collects only those that happen to fall within 3 px
+    # of its epipolar lines (a few %) — far below the > 60 % of a real pair
+    assert n_inliers <= 0.15 * n_matches
+
+
+def test_translated_crop_keeps_every_correct_match():
+    astro = _grey(skimage.data.astronaut())
+    prev, cur = astro[0:384, 0:480], astro[10:394, 16:496]  # the camera moved by (16, 10) px: content moves (-16, -10)
+    orb = OrbFrontEnd({"working_size": None})
+    a, b = orb.extract(prev), orb.extract(cur)
+    n_matches, n_inliers = orb.match(a, b, seed=0)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    ms = matcher.match(a.descriptors, b.descriptors)
+    shift = np.array([b.points_xy[m.trainIdx] - a.points_xy[m.queryIdx] for m in ms])
+    n_correct = int(np.sum(np.linalg.norm(shift - [-16, -10], axis=1) < 1.5))
+    assert n_matches == len(ms) and n_correct > 1000
+    # correct matches all satisfy one geometry; ORB keypoints are quantised per pyramid level (up to ~1 px at the
+    # coarser levels), well inside 3 px, so at most a few percent may be missed
+    assert n_inliers >= 0.98 * n_correct
+    assert n_inliers <= n_matches
+
+
+def test_deterministic(stereo):
+    a1, a2 = OrbFrontEnd({}), OrbFrontEnd({})
+    x, y = a1.extract(stereo[0]), a2.extract(stereo[0])
+    assert x.n_count == y.n_count and np.array_equal(x.points_xy, y.points_xy)
+    assert np.array_equal(x.descriptors, y.descriptors)
+    b = a1.extract(stereo[1])
+    assert a1.match(x, b, seed=5) == a2.match(y, a2.extract(stereo[1]), seed=5)
+
+
+def test_featureless_image_gives_zero(orb, stereo):
+    flat = orb.extract(np.full((480, 640), 128, np.uint8))
+    assert orb.n_features(flat) == 0
+    assert orb.match(flat, orb.extract(stereo[0]), seed=0) == (0, 0)
+
+
+def test_rejects_non_grey_input(orb):
+    with pytest.raises(ValueError, match="grey"):
+        orb.extract(np.zeros((48, 64, 3), np.uint8))
+
+
+@pytest.mark.parametrize(
+    "cfg, key",
+    [
+        ({"nfeatures": 5}, "features.orb.nfeatures"),
+        ({"working_size": [512]}, "features.orb.working_size"),
+        ({"count_nfeatures": 0}, "features.orb.count_nfeatures"),
+        ({"scale_factor": 1.0}, "features.orb.scale_factor"),
+        ({"fast_threshold": 300}, "features.orb.fast_threshold"),
+        ({"ransac_threshold_px": -1}, "features.orb.ransac_threshold_px"),
+    ],
+)
+def test_bad_config_names_the_key(cfg, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        OrbParams.from_dict(cfg)
+
+
+def test_config_round_trip():
+    p = OrbParams.from_dict({"working_size": [320, 240], "match_nfeatures": 500})
+    assert p.working_size == (320, 240) and p.match_nfeatures == 500 and p.count_nfeatures == 10000
