@@ -54,6 +54,10 @@ def test_stats_on_hand_built_rig():
     assert match["cross_camera_pair_share"] == 0.0
     assert match["ev_offset_same_frame"]["median"] == 0.0 and match["ev_offset_next_reference"]["median"] == 0.0
     assert match["consecutive_equal_settings"] == 0.0
+    # target moves: feat 0, +2 dB, 0 between steps; match follows camera 1's +1 dB per frame
+    assert feat["consecutive_abs_ev_change"]["median"] == 0.0
+    assert match["consecutive_abs_ev_change"]["median"] == pytest.approx(1 / 6.0206)
+    assert stats["camera1_abs_ev_step"]["median"] == pytest.approx(1 / 6.0206)
     # hybrid: half of each → exposure 1500 µs, gain the mean of the two
     t0 = labels[(labels.metric == "hybrid") & (labels.frame_id == 0)].iloc[0]
     assert t0.exposure_us == 1500.0 and t0.gain_db == 1.5
@@ -69,6 +73,7 @@ def test_stats_on_hand_built_rig():
     # findings say both observations of the paper hold here
     text = " ".join(stats["findings"])
     assert "reference camera in 100% of time steps" in text and text.count("— consistent") == 2
+    assert stats["findings"][2].endswith("NOT consistent.")  # here feat targets stay put more often than match
     md = render_markdown(stats)
     assert "| from camera 1 / 2 | 0% / 100% | 100% / 0% | — |" in md
     assert "+1.00 (+1.00 … +1.00) EV" in md
@@ -84,7 +89,10 @@ def test_findings_flag_disagreement():
     assert stats["metrics"]["match"]["camera_share"]["2"] == 1.0
     assert stats["metrics"]["match"]["cross_camera_pair_share"] == 1.0
     assert stats["metrics"]["feat"]["camera_share"]["1"] == 1.0
-    assert " ".join(stats["findings"]).count("NOT consistent") == 2
+    # match targets now alternate between the ±1 EV camera-2 images, feat targets follow camera 1's +1 dB per frame
+    assert stats["metrics"]["match"]["consecutive_abs_ev_change"]["median"] == pytest.approx(2.0 + 1 / 6.0206)
+    assert stats["metrics"]["feat"]["consecutive_abs_ev_change"]["median"] == pytest.approx(1 / 6.0206)
+    assert all("NOT consistent" in line for line in stats["findings"])
 
 
 def test_no_labels_still_reports():

@@ -50,6 +50,8 @@ def _metric_stats(lab: pd.DataFrame, ref_gain, ref_exp, target_row, next_row) ->
     cons = _consecutive(lab)
     same = np.isclose(g[1:], g[:-1], rtol=1e-9, atol=1e-9) & np.isclose(e[1:], e[:-1], rtol=1e-9, atol=1e-9)
     out["consecutive_equal_settings"] = float(same[cons].mean()) if cons.any() else None
+    # how far the target moves from one time step to the next (the paper: M_feat jumpy, M_match steady)
+    out["consecutive_abs_ev_change"] = _summary(np.abs(np.diff(ev))[cons])
     if target_row is None:
         return out
     cam = lab["target_camera"].to_numpy(dtype=np.int64)
@@ -82,6 +84,11 @@ def compute_label_stats(labels: pd.DataFrame, frames: pd.DataFrame, label_cfg: d
     pert = ranges.exposure_value_ev(idx.gain_db[:, 1], idx.exposure_us[:, 1]) - ranges.exposure_value_ev(
         idx.gain_db[:, 0], idx.exposure_us[:, 0])
     stats["perturbation_ev_camera2_minus_camera1"] = _summary(pert)
+    # per-frame settings change of each camera (consecutive frames of one sequence): how steady each camera is
+    step = idx.has_ahead(1)
+    for cam in (1, 2):
+        ev_cam = ranges.exposure_value_ev(idx.gain_db[:, cam - 1], idx.exposure_us[:, cam - 1])
+        stats[f"camera{cam}_abs_ev_step"] = _summary(np.abs(ev_cam[1:] - ev_cam[:-1])[step[:-1]])
     sections = idx.section if idx.section is not None else np.full(len(idx), "unlabelled")
     lab_all["section"] = sections[lab_all["row"].to_numpy(dtype=np.int64)] if len(lab_all) else []
 
@@ -114,8 +121,11 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.0f}%"
 
 
-def _ev(x) -> str:
-    return "n/a" if x is None else f"{x:+.2f} EV"
+def _ev(x, signed=True) -> str:
+    if x is None:
+        return "n/a"
+    x = round(float(x), 2) + 0.0  # no "-0.00"
+    return f"{x:+.2f} EV" if signed else f"{x:.2f} EV"
 
 
 def findings(stats: dict) -> list[str]:
@@ -128,9 +138,10 @@ def findings(stats: dict) -> list[str]:
     ties = m["match"]["tie_share"]
     next_med = m["match"]["ev_offset_next_reference"].get("median")
     if share1 > 0.5:
-        why = ("Why: camera 1's settings change slowly, so a camera-1 → camera-1 pair has almost no photometric change "
-               "between its images, while camera 2 jumps to another perturbation quadrant every frame; a brightness "
-               "change between the two images of a pair costs matches.")
+        why = (f"Why: camera 1's settings change slowly (median {_ev(stats['camera1_abs_ev_step'].get('median'), 1)} "
+               f"per frame against {_ev(stats['camera2_abs_ev_step'].get('median'), 1)} for camera 2, which jumps to "
+               f"another perturbation quadrant every frame), so a camera-1 → camera-1 pair has the least photometric "
+               f"change between its images, and a brightness change within a pair costs matches.")
     else:
         why = (f"Why: pairs ending on camera 2 won most often, which happens when the reference is far from the best "
                f"exposure for matching (median offset of the match target from camera 1 at t+1: {_ev(next_med)}; "
@@ -163,10 +174,14 @@ def findings(stats: dict) -> list[str]:
         f"{'consistent' if ok else 'NOT consistent'} with the paper. {why}. The available perturbations "
         f"(camera 2 − camera 1) span {_ev(pert.get('p10'))} … {_ev(pert.get('p90'))} (p10 … p90).")
     h = m["hybrid"]
+    step = {k: m[k]["consecutive_abs_ev_change"].get("median") for k in METRICS}
+    steadier = step["match"] is not None and step["feat"] is not None and step["match"] <= step["feat"]
     out.append(
         f"Consecutive targets are equal in {_pct(m['match']['consecutive_equal_settings'])} of steps for M_match, "
         f"{_pct(f['consecutive_equal_settings'])} for M_feat and {_pct(h['consecutive_equal_settings'])} for "
-        f"M_hybrid (the paper: M_feat targets are the more variable, M_match the more stable).")
+        f"M_hybrid; the target moves a median {_ev(step['match'], 1)}, {_ev(step['feat'], 1)} and "
+        f"{_ev(step['hybrid'], 1)} per step (the paper: M_feat targets are the more variable, M_match the more "
+        f"stable) — {'consistent' if steadier else 'NOT consistent'}.")
     return out
 
 
@@ -208,6 +223,9 @@ def render_markdown(stats: dict) -> str:
     row("gain offset vs reference at t+1: median (p10 … p90)",
         lambda s: _dist(s["gain_offset_db_next_reference"], "dB"))
     row("consecutive targets with equal settings", lambda s: _pct(s["consecutive_equal_settings"]))
+    row("target change between consecutive steps: median |ΔEV| (p90)",
+        lambda s: f"{_ev(s['consecutive_abs_ev_change']['median'], 0)} "
+                  f"({_ev(s['consecutive_abs_ev_change']['p90'], 0)})")
     row("consecutive targets from the same image", lambda s: _pct(s["consecutive_same_image"]))
     row("ties (broken towards earliest frame, camera 1)", lambda s: _pct(s["tie_share"]))
     row("max count zero", lambda s: _pct(s["zero_score_share"]))
@@ -227,14 +245,17 @@ def render_markdown(stats: dict) -> str:
     p = stats["perturbation_ev_camera2_minus_camera1"]
     lines += ["", f"Perturbation available (camera 2 − camera 1, all frames): median {_ev(p.get('median'))}, "
               f"p10 … p90 {_ev(p.get('p10'))} … {_ev(p.get('p90'))}; camera 2 brighter in "
-              f"{_pct(p.get('share_brighter'))} of frames.", ""]
+              f"{_pct(p.get('share_brighter'))} of frames. Settings change per frame (median |ΔEV|): camera 1 "
+              f"{_ev(stats['camera1_abs_ev_step'].get('median'), 0)}, camera 2 "
+              f"{_ev(stats['camera2_abs_ev_step'].get('median'), 0)}.", ""]
     return "\n".join(lines)
 
 
 def _dist(s: dict, unit: str) -> str:
     if not s.get("n"):
         return "n/a"
-    return f"{s['median']:+.2f} ({s['p10']:+.2f} … {s['p90']:+.2f}) {unit}"
+    v = [round(s[k], 2) + 0.0 for k in ("median", "p10", "p90")]
+    return f"{v[0]:+.2f} ({v[1]:+.2f} … {v[2]:+.2f}) {unit}"
 
 
 def flat_metrics(stats: dict) -> dict[str, float]:
@@ -245,6 +266,7 @@ def flat_metrics(stats: dict) -> dict[str, float]:
                          ("median_ev_offset_same_frame", (s.get("ev_offset_same_frame") or {}).get("median")),
                          ("median_ev_offset_next_reference", s["ev_offset_next_reference"].get("median")),
                          ("consecutive_equal_settings", s.get("consecutive_equal_settings")),
+                         ("median_abs_ev_change", s["consecutive_abs_ev_change"].get("median")),
                          ("tie_share", s.get("tie_share"))):
             if val is not None:
                 out[f"{metric}.{key}"] = float(val)
