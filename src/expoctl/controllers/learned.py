@@ -1,0 +1,121 @@
+"""The learned controller (Tomasi et al. 2021): the trained CNN behind the shared `Controller` interface.
+
+Per frame: the full-size 8-bit RGB camera frame goes through `expoctl.preprocess.prepare_frame` — the ingest resize
+(INTER_AREA to the image-store size recorded in the checkpoint), then to the network input size — exactly the
+chain the training frames went through. The controller keeps the last three prepared frames and their settings;
+until three frames exist it repeats the oldest one (the start of a sequence). The network's two outputs are
+clamped to [0, 1] and unscaled (`expoctl.camera.ranges`); the caller applies them at frame t+1.
+
+Driving a real camera (any SDK that can read a frame with its gain/exposure and set the next ones):
+
+    from expoctl.controllers.base import Settings
+    from expoctl.controllers.learned import LearnedController
+
+    ctrl = LearnedController.from_checkpoint("models/controller.pt", num_threads=1)   # or backend="onnx"
+    ctrl.reset(Settings(gain_db=cam.gain_db, exposure_us=cam.exposure_us))
+    while running:
+        frame = cam.grab()                               # H×W×3 uint8 RGB (convert BGR/Bayer first)
+        applied = Settings(frame.gain_db, frame.exposure_us)   # what the frame was captured with (chunk data)
+        nxt = ctrl.update(frame.rgb, applied)
+        cam.set_gain_db(nxt.gain_db); cam.set_exposure_us(nxt.exposure_us)   # takes effect at the next frame
+
+Use the settings the frame was actually captured with (from the camera's per-frame metadata), not the last command.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
+from expoctl.controllers.base import Controller, Settings
+from expoctl.errors import ConfigError
+from expoctl.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
+
+
+class LearnedController(Controller):
+    name = "learned"
+
+    def __init__(self, model: torch.nn.Module, store_hw, input_hw, num_threads: int | None = 1,
+                 onnx_session=None):
+        self.model = model.eval()
+        self.store_hw = tuple(int(v) for v in store_hw)
+        self.input_hw = tuple(int(v) for v in input_hw)
+        self.num_threads = num_threads
+        self.onnx_session = onnx_session
+        self._frames: deque = deque(maxlen=N_FRAMES)
+        self._settings: deque = deque(maxlen=N_FRAMES)
+
+    @classmethod
+    def from_checkpoint(cls, path, num_threads: int | None = 1, backend: str = "torch") -> "LearnedController":
+        """Load models/controller.pt; backend "onnx" runs the exported models/controller.onnx beside it."""
+        from expoctl.train import load_checkpoint
+
+        model, ckpt = load_checkpoint(path)
+        session = None
+        if backend == "onnx":
+            import onnxruntime as ort
+
+            onnx_path = Path(path).with_suffix(".onnx")
+            if not onnx_path.exists():
+                raise ConfigError("controllers.learned.backend", f"onnx selected but {onnx_path} does not exist")
+            opts = ort.SessionOptions()
+            if num_threads:
+                opts.intra_op_num_threads = int(num_threads)
+                opts.inter_op_num_threads = 1
+            session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
+        elif backend != "torch":
+            raise ConfigError("controllers.learned.backend", f"must be torch or onnx, got {backend!r}")
+        return cls(model, ckpt["store_hw"], ckpt["input_hw"], num_threads=num_threads, onnx_session=session)
+
+    def reset(self, initial: Settings) -> None:
+        self._frames.clear()
+        self._settings.clear()
+
+    def network_input(self, image: np.ndarray, applied: Settings) -> torch.Tensor:
+        """Push frame t into the history and return the (1, 15, h, w) input (exposed for the agreement test)."""
+        frame = prepare_frame(image, self.store_hw, self.input_hw)
+        self._frames.appendleft(frame)  # index 0 = t, 1 = t−1, 2 = t−2
+        self._settings.appendleft(applied)
+        while len(self._frames) < N_FRAMES:  # sequence start: repeat the oldest frame we have
+            self._frames.append(self._frames[-1])
+            self._settings.append(self._settings[-1])
+        g, e = settings_to_norm([s.gain_db for s in self._settings], [s.exposure_us for s in self._settings])
+        return assemble_input(stack_frames(list(self._frames)), torch.from_numpy(g)[None], torch.from_numpy(e)[None])
+
+    def predict_norm(self, x: torch.Tensor) -> np.ndarray:
+        if self.onnx_session is not None:
+            return self.onnx_session.run(None, {"input": x.numpy()})[0][0]
+        if self.num_threads and torch.get_num_threads() != self.num_threads:
+            torch.set_num_threads(self.num_threads)
+        with torch.no_grad():
+            return self.model(x)[0].numpy()
+
+    def update(self, image: np.ndarray, applied: Settings) -> Settings:
+        out = self.predict_norm(self.network_input(image, applied))
+        # clamp to [0, 1] then unscale (norm_to_* clamp first)
+        return Settings(float(norm_to_gain(out[0])), float(norm_to_exposure(out[1])))
+
+
+def _factory(params: dict) -> Controller:
+    allowed = {"checkpoint", "backend", "num_threads"}
+    unknown = set(params) - allowed
+    if unknown:
+        raise ConfigError(f"controllers.learned.{sorted(unknown)[0]}", f"unknown key (known: {sorted(allowed)})")
+    path = params.get("checkpoint", "models/controller.pt")
+    nt = params.get("num_threads", 1)
+    if nt is not None and (not isinstance(nt, int) or nt < 1):
+        raise ConfigError("controllers.learned.num_threads", f"must be a positive int or null, got {nt!r}")
+    return LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"))
+
+
+def _register() -> None:
+    from expoctl.controllers.registry import register
+
+    register("learned", _factory)
+
+
+_register()

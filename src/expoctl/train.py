@@ -1,0 +1,334 @@
+"""Training the controller network: Adam on the ε-weighted L1 loss, early stopping, best checkpoint, baselines.
+
+Loss (paper): L = ε·mean|Ĝ − G*| + (1 − ε)·mean|Ê − E*| on [0, 1]-scaled targets.
+Errors in physical units, as the deployed controller would see them (outputs clamped to [0, 1], then unscaled):
+gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The constant predictor is the per-output median
+of the training targets (the L1-optimal constant); the model's errors are reported next to it.
+
+Distributed data parallel: when `torch.distributed` is initialised (torchrun), each process takes an interleaved
+share of every global batch (`batch_size` stays the global batch, so hyperparameters mean the same at any
+process count), gradients are averaged by DDP, validation sums are all-reduced, and every rank reaches the same
+early-stopping decision. Only rank 0 calls `on_epoch`. Library code: no MLflow/Hydra here.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import asdict, dataclass, fields
+from typing import Callable
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+
+from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
+from expoctl.dataset import SampleSet
+from expoctl.errors import ConfigError
+from expoctl.model import ExposureNet, ModelConfig, count_macs, count_parameters
+from expoctl.preprocess import CHANNEL_NAMES
+
+CHECKPOINT_FORMAT = "expoctl-controller-v1"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    lr: float = 1e-4
+    batch_size: int = 64  # global batch (split across DDP processes)
+    epochs: int = 200
+    epsilon: float = 0.5  # loss weight of gain; 1 − ε on exposure
+    weight_decay: float = 0.0
+    patience: int = 20  # early stopping: epochs without a validation-loss improvement > min_delta
+    min_delta: float = 0.0
+    flip_prob: float = 0.5  # shared horizontal flip of the three frames
+    num_threads: int = 2  # torch.set_num_threads per process
+    eval_batch_size: int = 256
+    max_train_samples: int | None = None  # random subset (for quick studies); None = all
+    max_validation_samples: int | None = None
+    onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
+
+    @classmethod
+    def from_dict(cls, d: dict | None, prefix: str = "train") -> "TrainConfig":
+        d = dict(d or {})
+        types = {f.name: f.type for f in fields(cls)}
+        for k in list(d):
+            if k not in types:
+                raise ConfigError(f"{prefix}.{k}", f"unknown key (known: {sorted(types)})")
+        try:
+            for k in ("batch_size", "epochs", "patience", "num_threads", "eval_batch_size"):
+                if k in d:
+                    d[k] = int(d[k])
+            for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob"):
+                if k in d:
+                    d[k] = float(d[k])
+            for k in ("max_train_samples", "max_validation_samples"):
+                if d.get(k) is not None:
+                    d[k] = int(d[k])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(prefix, f"bad value: {exc}") from None
+        cfg = cls(**d)
+        cfg.validate(prefix)
+        return cfg
+
+    def validate(self, prefix: str = "train") -> None:
+        checks = [
+            ("lr", self.lr > 0, "must be > 0"),
+            ("batch_size", self.batch_size >= 2, "must be ≥ 2 (batch norm)"),
+            ("epochs", self.epochs >= 1, "must be ≥ 1"),
+            ("epsilon", 0.0 <= self.epsilon <= 1.0, "must be in [0, 1]"),
+            ("weight_decay", self.weight_decay >= 0, "must be ≥ 0"),
+            ("patience", self.patience >= 1, "must be ≥ 1"),
+            ("min_delta", self.min_delta >= 0, "must be ≥ 0"),
+            ("flip_prob", 0.0 <= self.flip_prob <= 1.0, "must be in [0, 1]"),
+            ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
+            ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
+            ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
+            ("max_train_samples", self.max_train_samples is None or self.max_train_samples >= 2, "must be ≥ 2 or null"),
+            ("max_validation_samples", self.max_validation_samples is None or self.max_validation_samples >= 1,
+             "must be ≥ 1 or null"),
+        ]
+        for key, ok, problem in checks:
+            if not ok:
+                raise ConfigError(f"{prefix}.{key}", f"{problem}, got {getattr(self, key)}")
+
+
+def weighted_l1(pred: torch.Tensor, target: torch.Tensor, epsilon: float) -> torch.Tensor:
+    """ε·mean|Ĝ − G*| + (1 − ε)·mean|Ê − E*| (columns: gain, exposure)."""
+    err = (pred - target).abs()
+    return epsilon * err[:, 0].mean() + (1.0 - epsilon) * err[:, 1].mean()
+
+
+def error_sums(pred_norm: np.ndarray, target_norm: np.ndarray, epsilon: float) -> np.ndarray:
+    """Sums over samples of [|Δg_norm|, |Δe_norm|, |Δg| dB, |Δ log2 e| EV] (prediction clamped, as deployed) + count."""
+    pred_norm = np.asarray(pred_norm, np.float64)
+    target_norm = np.asarray(target_norm, np.float64)
+    d = np.abs(pred_norm - target_norm)
+    gain_err_db = np.abs(norm_to_gain(pred_norm[:, 0]) - norm_to_gain(target_norm[:, 0]))
+    ev_err = np.abs(np.log2(norm_to_exposure(pred_norm[:, 1]) / norm_to_exposure(target_norm[:, 1])))
+    return np.array([d[:, 0].sum(), d[:, 1].sum(), gain_err_db.sum(), ev_err.sum(), len(d)], np.float64)
+
+
+def metrics_from_sums(s: np.ndarray, epsilon: float) -> dict:
+    n = max(s[4], 1.0)
+    return {
+        "loss": float((epsilon * s[0] + (1 - epsilon) * s[1]) / n),
+        "gain_mae_norm": float(s[0] / n),
+        "exposure_mae_norm": float(s[1] / n),
+        "gain_mae_db": float(s[2] / n),
+        "exposure_mae_ev": float(s[3] / n),
+    }
+
+
+def _dist_info() -> tuple[int, int]:
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+@torch.no_grad()
+def predict(model: nn.Module, data: SampleSet, batch_size: int = 256, rows: np.ndarray | None = None) -> np.ndarray:
+    """Raw (unclamped) normalised predictions for `rows` (default all), eval mode."""
+    was_training = model.training
+    model.eval()
+    rows = np.arange(len(data)) if rows is None else rows
+    out = [model(data.batch(rows[i:i + batch_size])[0]).numpy() for i in range(0, len(rows), batch_size)]
+    model.train(was_training)
+    return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
+
+
+def evaluate(model: nn.Module, data: SampleSet, epsilon: float, batch_size: int = 256,
+             rows: np.ndarray | None = None) -> dict:
+    """Validation metrics; under DDP each rank evaluates an interleaved share and the sums are all-reduced."""
+    rank, world = _dist_info()
+    rows = np.arange(len(data)) if rows is None else rows
+    mine = rows[rank::world]
+    pred = predict(model, data, batch_size, mine)
+    sums = error_sums(pred, data.targets[torch.as_tensor(mine, dtype=torch.long)].numpy(), epsilon)
+    if world > 1:
+        t = torch.from_numpy(sums)
+        dist.all_reduce(t)
+        sums = t.numpy()
+    return metrics_from_sums(sums, epsilon)
+
+
+def constant_baseline(train: SampleSet) -> np.ndarray:
+    """Per-output median of the training targets: the constant predictor minimising the L1 loss."""
+    return np.median(train.targets.numpy(), axis=0).astype(np.float32)
+
+
+@dataclass
+class TrainResult:
+    model: ExposureNet  # best-validation weights, eval mode, unwrapped
+    best_epoch: int
+    epochs_run: int
+    history: list[dict]
+    metrics: dict  # final: validation (model + baseline), improvement, sizes, speed
+
+
+def _subset(n: int, limit: int | None, rng: np.random.Generator) -> np.ndarray:
+    if limit is None or limit >= n:
+        return np.arange(n)
+    return np.sort(rng.choice(n, size=limit, replace=False))
+
+
+def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: SampleSet, seed: int,
+        on_epoch: Callable[[int, dict], None] | None = None, log: Callable[[str], None] | None = None) -> TrainResult:
+    """Train on `train`, early-stop on `validation` loss, return the best model and metrics (see module doc)."""
+    if tuple(train.input_hw) != tuple(model_cfg.input_size):
+        raise ConfigError("model.input_size", f"{model_cfg.input_size} but the data were prepared at {train.input_hw}")
+    rank, world = _dist_info()
+    torch.set_num_threads(cfg.num_threads)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    train_rows = _subset(len(train), cfg.max_train_samples, rng)
+    val_rows = _subset(len(validation), cfg.max_validation_samples, rng)
+    if len(train_rows) < 2 * world:
+        raise ConfigError("train", f"only {len(train_rows)} training samples for {world} process(es)")
+    if cfg.batch_size < 2 * world:
+        raise ConfigError("train.batch_size", f"{cfg.batch_size} is too small for {world} processes (≥ 2 each)")
+
+    model = ExposureNet(model_cfg)
+    net: nn.Module = model
+    if world > 1:
+        net = nn.parallel.DistributedDataParallel(model)
+    torch.manual_seed(seed * 1000 + rank)  # dropout masks differ per process, reproducibly
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+    best = (math.inf, -1, None)
+    history: list[dict] = []
+    n_bad = 0
+    total_train_time = 0.0
+    samples_seen = 0
+    for epoch in range(cfg.epochs):
+        gen = torch.Generator().manual_seed(seed * 7919 + epoch)  # identical on every rank
+        perm = train_rows[torch.randperm(len(train_rows), generator=gen).numpy()]
+        flips = torch.rand(len(perm), generator=gen) < cfg.flip_prob
+        net.train()
+        t0 = time.perf_counter()
+        loss_sum, n_sum = 0.0, 0
+        for start in range(0, len(perm), cfg.batch_size):
+            glob = slice(start, start + cfg.batch_size)
+            if len(perm[glob]) < 2 * world:
+                break  # batch norm needs ≥ 2 samples per process; drop a tiny remainder
+            rows, flip = perm[glob][rank::world], flips[glob][rank::world]
+            x, y = train.batch(rows, flip)
+            loss = weighted_l1(net(x), y, cfg.epsilon)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            loss_sum += loss.item() * len(rows)
+            n_sum += len(rows)
+        dt = time.perf_counter() - t0
+        total_train_time += dt
+        samples_seen += n_sum
+        train_loss = loss_sum / max(n_sum, 1)
+        if world > 1:
+            t = torch.tensor([loss_sum, float(n_sum)], dtype=torch.float64)
+            dist.all_reduce(t)
+            train_loss = float(t[0] / max(t[1], 1))
+        val = evaluate(model, validation, cfg.epsilon, cfg.eval_batch_size, val_rows)
+        rec = {"train_loss": train_loss, **{f"val_{k}": v for k, v in val.items()},
+               "epoch_seconds": dt, "train_samples_per_s": n_sum * world / dt if dt > 0 else float("nan")}
+        history.append(rec)
+        improved = val["loss"] < best[0] - cfg.min_delta
+        if improved:
+            best = (val["loss"], epoch, copy.deepcopy(model.state_dict()))
+            n_bad = 0
+        else:
+            n_bad += 1
+        if rank == 0:
+            if on_epoch is not None:
+                on_epoch(epoch, rec)
+            if log is not None:
+                log(f"epoch {epoch:3d}  train {train_loss:.4f}  val {val['loss']:.4f}  "
+                    f"gain {val['gain_mae_db']:.2f} dB  exposure {val['exposure_mae_ev']:.3f} EV"
+                    f"{'  *' if improved else ''}")
+        if n_bad >= cfg.patience:
+            break
+
+    model.load_state_dict(best[2])
+    model.eval()
+    val = evaluate(model, validation, cfg.epsilon, cfg.eval_batch_size, val_rows)
+    const = constant_baseline(train)
+    base_pred = np.broadcast_to(const, (len(val_rows), 2))
+    base = metrics_from_sums(error_sums(base_pred, validation.targets.numpy()[val_rows], cfg.epsilon), cfg.epsilon)
+    metrics = {
+        **{f"val_{k}": v for k, v in val.items()},
+        **{f"baseline_val_{k}": v for k, v in base.items()},
+        "baseline_gain_norm": float(const[0]), "baseline_exposure_norm": float(const[1]),
+        "improvement_gain_db": base["gain_mae_db"] - val["gain_mae_db"],
+        "improvement_exposure_ev": base["exposure_mae_ev"] - val["exposure_mae_ev"],
+        "val_loss_ratio_to_baseline": val["loss"] / base["loss"] if base["loss"] > 0 else float("nan"),
+        "beats_baseline": bool(val["loss"] < base["loss"]),
+        "best_epoch": best[1], "epochs_run": len(history),
+        "n_train_samples": int(len(train_rows)), "n_validation_samples": int(len(val_rows)),
+        "n_processes": world, "n_parameters": count_parameters(model), "macs_per_sample": count_macs(model_cfg),
+        "train_samples_per_s": samples_seen * world / total_train_time if total_train_time > 0 else float("nan"),
+    }
+    return TrainResult(model=model, best_epoch=best[1], epochs_run=len(history), history=history, metrics=metrics)
+
+
+# ---------------------------------------------------------------- checkpoint + ONNX
+
+
+def checkpoint_dict(result: TrainResult, model_cfg: ModelConfig, cfg: TrainConfig, store_hw, seed: int) -> dict:
+    """Everything the deployed controller needs: weights, architecture, and the preprocessing sizes."""
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "model_config": model_cfg.to_dict(),
+        "state_dict": {k: v.detach().clone() for k, v in result.model.state_dict().items()},
+        "store_hw": [int(v) for v in store_hw],
+        "input_hw": [int(v) for v in model_cfg.input_size],
+        "channel_names": list(CHANNEL_NAMES),
+        "train_config": {k: v for k, v in asdict(cfg).items()},
+        "seed": int(seed),
+        "metrics": {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in result.metrics.items()},
+    }
+
+
+def load_checkpoint(path) -> tuple[ExposureNet, dict]:
+    """Load models/controller.pt → (model in eval mode, checkpoint metadata)."""
+    from expoctl.errors import InputError
+
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise InputError(f"{path}: model checkpoint not found") from None
+    except Exception as exc:
+        raise InputError(f"{path}: cannot read model checkpoint ({exc})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{path}: not an expoctl controller checkpoint (format {CHECKPOINT_FORMAT} expected)")
+    model = ExposureNet(ModelConfig.from_dict(ckpt["model_config"]))
+    model.load_state_dict(ckpt["state_dict"])
+    model.eval()
+    return model, ckpt
+
+
+def export_onnx(model: ExposureNet, path, exporter: str = "torchscript") -> None:
+    """Export (eval mode, dynamic batch) atomically.
+
+    exporter "torchscript" (default): torch's TorchScript-based exporter — needs nothing beyond torch + onnx,
+    works offline, deprecated since torch 2.9 but present in 2.13. "dynamo": the torch.export-based exporter, which
+    needs `onnxscript` (tested with onnxscript 0.7.2 / onnx-ir 1.1.0); both give outputs equal to torch within 1e-4.
+    """
+    import warnings
+
+    from expoctl.io import atomic_path
+
+    if exporter not in ("torchscript", "dynamo"):
+        raise ConfigError("train.onnx_exporter", f"must be torchscript or dynamo, got {exporter!r}")
+    model = copy.deepcopy(model).eval()
+    h, w = model.cfg.input_size
+    example = torch.zeros(1, len(CHANNEL_NAMES), h, w)
+    with atomic_path(path, suffix=".onnx") as tmp:
+        if exporter == "dynamo":
+            torch.onnx.export(model, (example,), str(tmp), input_names=["input"], output_names=["settings_norm"],
+                              dynamic_shapes={"x": {0: torch.export.Dim("batch")}}, dynamo=True, verbose=False)
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                torch.onnx.export(model, (example,), str(tmp), input_names=["input"], output_names=["settings_norm"],
+                                  dynamic_axes={"input": {0: "batch"}, "settings_norm": {0: "batch"}},
+                                  opset_version=17, dynamo=False)

@@ -1,0 +1,111 @@
+"""Training: loss, physical errors, baseline, determinism, early stopping, checkpoint and ONNX agreement."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from expoctl.dataset import load_sample_sets_from_files
+from expoctl.errors import ConfigError, InputError
+from expoctl.model import ModelConfig
+from expoctl.synthetic_data import make_synthetic_dataset
+from expoctl.train import (TrainConfig, checkpoint_dict, error_sums, export_onnx, fit, load_checkpoint,
+                           metrics_from_sums, predict, weighted_l1)
+
+TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
+                   fc_widths=(16, 8, 8), dropout=0.1)
+
+
+@pytest.fixture(scope="module")
+def sets(tmp_path_factory):
+    p = make_synthetic_dataset(tmp_path_factory.mktemp("syn"), n_sequences=5, n_frames=14, hw=(32, 32), seed=0)
+    return load_sample_sets_from_files(p["samples"], p["frames"], p["images_dir"], 32)
+
+
+def test_weighted_l1():
+    pred = torch.tensor([[0.5, 0.2], [0.1, 0.9]])
+    target = torch.tensor([[0.1, 0.2], [0.3, 0.5]])
+    # gain |0.4|, |0.2| → 0.3; exposure 0, 0.4 → 0.2
+    assert float(weighted_l1(pred, target, 0.25)) == pytest.approx(0.25 * 0.3 + 0.75 * 0.2)
+
+
+def test_errors_in_db_and_ev_after_clamping():
+    # gain 0.5→15 dB vs 0.6→18 dB: 3 dB; exposure norm 1.2 clamps to 30000 µs vs 15000 µs... one EV
+    e_half = (15000 - 75) / (30000 - 75)
+    m = metrics_from_sums(error_sums(np.array([[0.5, 1.2]]), np.array([[0.6, e_half]]), 0.5), 0.5)
+    assert m["gain_mae_db"] == pytest.approx(3.0)
+    assert m["exposure_mae_ev"] == pytest.approx(1.0)
+
+
+def test_config_errors_name_keys():
+    with pytest.raises(ConfigError, match="train.epsilon"):
+        TrainConfig.from_dict({"epsilon": 1.5})
+    with pytest.raises(ConfigError, match="train.learning_rate"):
+        TrainConfig.from_dict({"learning_rate": 1e-3})
+
+
+def test_fit_learns_beats_baseline_and_is_deterministic(sets):
+    cfg = TrainConfig(lr=3e-3, batch_size=32, epochs=8, patience=8, num_threads=1)
+    seen = []
+    r1 = fit(TINY, cfg, sets["train"], sets["validation"], seed=3, on_epoch=lambda e, m: seen.append((e, m)))
+    assert [e for e, _ in seen] == list(range(r1.epochs_run))
+    assert r1.history[-1]["train_loss"] < r1.history[0]["train_loss"]
+    m = r1.metrics
+    assert m["beats_baseline"] and m["val_loss"] < m["baseline_val_loss"]
+    assert m["val_loss"] == pytest.approx(min(h["val_loss"] for h in r1.history))  # best checkpoint restored
+    assert m["improvement_exposure_ev"] == pytest.approx(m["baseline_val_exposure_mae_ev"] - m["val_exposure_mae_ev"])
+    r2 = fit(TINY, cfg, sets["train"], sets["validation"], seed=3)
+    for (k, a), b in zip(r1.model.state_dict().items(), r2.model.state_dict().values()):
+        assert torch.equal(a, b), k
+
+
+def test_early_stopping(sets):
+    # lr so small nothing improves by min_delta after the first epoch → stops after 1 + patience epochs
+    cfg = TrainConfig(lr=1e-9, batch_size=32, epochs=50, patience=2, min_delta=0.5, num_threads=1)
+    r = fit(TINY, cfg, sets["train"], sets["validation"], seed=0)
+    assert r.epochs_run == 3 and r.best_epoch == 0
+
+
+def test_input_size_mismatch_is_a_config_error(sets):
+    cfg = ModelConfig(input_size=(40, 40), conv_kernels=(3, 3, 3), pool=2)
+    with pytest.raises(ConfigError, match="model.input_size"):
+        fit(cfg, TrainConfig(epochs=1), sets["train"], sets["validation"], seed=0)
+
+
+def test_checkpoint_roundtrip_and_onnx_matches_torch(sets, tmp_path):
+    cfg = TrainConfig(lr=3e-3, batch_size=32, epochs=2, num_threads=1)
+    r = fit(TINY, cfg, sets["train"], sets["validation"], seed=0)
+    torch.save(checkpoint_dict(r, TINY, cfg, sets["train"].store_hw, seed=0), tmp_path / "controller.pt")
+    model, ckpt = load_checkpoint(tmp_path / "controller.pt")
+    assert ckpt["input_hw"] == [32, 32] and ckpt["store_hw"] == [32, 32]
+    ref = predict(r.model, sets["validation"])
+    assert np.array_equal(predict(model, sets["validation"]), ref)
+
+    export_onnx(model, tmp_path / "controller.onnx")
+    sess = ort.InferenceSession(str(tmp_path / "controller.onnx"), providers=["CPUExecutionProvider"])
+    x, _ = sets["validation"].batch(np.arange(len(sets["validation"])))
+    out = sess.run(None, {"input": x.numpy()})[0]
+    assert out.shape == ref.shape
+    assert np.abs(out - ref).max() < 1e-4
+    single = sess.run(None, {"input": x[:1].numpy()})[0]  # batch size 1 (deployment) works too
+    assert np.abs(single - ref[:1]).max() < 1e-4
+
+
+def test_bad_checkpoint_is_input_error(tmp_path):
+    (tmp_path / "x.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="x.pt"):
+        load_checkpoint(tmp_path / "x.pt")
+    with pytest.raises(InputError, match="not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+@pytest.mark.slow
+def test_dynamo_exporter_matches_torch(sets, tmp_path):
+    pytest.importorskip("onnxscript")
+    r = fit(TINY, TrainConfig(batch_size=32, epochs=1, num_threads=1), sets["train"], sets["validation"], seed=0)
+    export_onnx(r.model, tmp_path / "d.onnx", exporter="dynamo")
+    sess = ort.InferenceSession(str(tmp_path / "d.onnx"), providers=["CPUExecutionProvider"])
+    x, _ = sets["validation"].batch(np.arange(len(sets["validation"])))
+    assert np.abs(sess.run(None, {"input": x.numpy()})[0] - predict(r.model, sets["validation"])).max() < 1e-4
