@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import write_synthetic_sequence
+from synthetic_raw import write_synthetic_sequence
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.ingest import IngestConfig, assign_split, ingest

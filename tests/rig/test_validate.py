@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from conftest import write_synthetic_sequence
+from synthetic_raw import write_synthetic_sequence
 
 from expoctl.rig.validate import check_sequence, validate_raw_dir
 

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# expoctl's two commands. Each creates .venv (Python 3.11 + pip) and installs the pinned dependencies if needed.
+#   ./run.sh pipeline   the whole pipeline at the default scale (dvc repro)
+#   ./run.sh test       the test suite (what CI runs)
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV="${EXPOCTL_VENV:-.venv}"
+PYTHON="${PYTHON:-python3.11}"
+command -v "$PYTHON" >/dev/null 2>&1 || PYTHON=python3
+
+setup() {
+  local stamp="$VENV/.expoctl-installed"
+  if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
+    "$VENV/bin/python" -m pip install -q --upgrade pip
+    "$VENV/bin/python" -m pip install -q -e '.[test]'
+    touch "$stamp"
+  fi
+  export PATH="$PWD/$VENV/bin:$PATH"
+}
+
+case "${1:-}" in
+  pipeline)
+    setup
+    [ -d .git ] || { echo "run.sh: dvc needs a git checkout (git clone the repository)" >&2; exit 2; }
+    shift
+    dvc repro "$@"
+    ;;
+  test)
+    setup
+    shift
+    python -m pytest "$@"
+    ;;
+  *)
+    echo "usage: ./run.sh pipeline|test [args passed to dvc repro / pytest]" >&2
+    exit 2
+    ;;
+esac

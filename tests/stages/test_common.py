@@ -1,0 +1,46 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from expoctl.errors import InputError
+from stages.common import config_hash, flatten, main_project_root, select_keys
+
+
+def test_main_project_root_escapes_dvc_queue_copies():
+    assert main_project_root(Path("/home/u/proj/.dvc/tmp/exps/tmpab12/")) == Path("/home/u/proj")
+    assert main_project_root(Path("/home/u/proj")) == Path("/home/u/proj")
+
+
+def test_select_keys_and_hash():
+    cfg = {"a": {"b": 1, "c": [1, 2]}, "paths": {"x": "y"}}
+    assert select_keys(cfg, ["a", "paths.x"]) == {"a": {"b": 1, "c": [1, 2]}, "paths.x": "y"}
+    with pytest.raises(InputError, match="'paths.z' is missing"):
+        select_keys(cfg, ["paths.z"])
+    assert config_hash({"a": 1, "b": 2}) == config_hash({"b": 2, "a": 1}) != config_hash({"a": 2, "b": 2})
+
+
+def test_flatten():
+    assert flatten({"a": {"b": 1, "c": {"d": "x"}}, "l": [1, 2]}) == {"a.b": 1, "a.c.d": "x", "l": "[1, 2]"}
+
+
+def test_tracked_run_logs_one_run_with_tags(tmp_path, monkeypatch):
+    import mlflow
+
+    from stages import common
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'm.db'}")
+    cfg = {"ingest": {"image_width": 8}, "paths": {"raw_dir": "r", "frames": "f", "images_dir": "i"}, "scale_name": "fixture"}
+    try:
+        with common.tracked_run("ingest", cfg) as tracker:
+            tracker.log_metrics({"n_images": 4, "nested": {"x": 1.5}})
+        client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'm.db'}")
+        (run,) = client.search_runs([client.get_experiment_by_name("expoctl").experiment_id])
+        assert run.data.tags["stage"] == "ingest" and run.data.tags["scale"] == "fixture"
+        assert run.data.tags["config_hash"] == common.config_hash(common.select_keys(cfg, common.STAGE_KEYS["ingest"]))
+        assert run.data.params["ingest.image_width"] == "8"
+        assert run.data.metrics["n_images"] == 4 and run.data.metrics["nested.x"] == 1.5
+        assert "stage_seconds" in run.data.metrics
+    finally:
+        mlflow.set_tracking_uri(None)
