@@ -50,8 +50,8 @@ DEFAULTS: dict = {
 }
 
 
-def _validate(p: dict) -> None:
-    k = "controllers.agae."
+def _validate(p: dict, prefix: str) -> None:
+    k = prefix + "."
     require(0.0 < p["target_grey_pct"] < 100.0, k + "target_grey_pct", "must be in (0, 100) percent of full scale")
     require(-3.0 <= p["ev_compensation"] <= 3.0, k + "ev_compensation", "must be in [-3, 3] EV")
     require(0.0 <= p["damping"] < 1.0, k + "damping", "must be in [0, 1)")
@@ -88,9 +88,14 @@ class AgAeController(Controller):
 
     name = "agae"
 
-    def __init__(self, params: dict | None = None, response_inverse: ResponseInverse | None = None):
-        self.params = check_params("controllers.agae", DEFAULTS, params)
-        _validate(self.params)
+    def __init__(
+        self,
+        params: dict | None = None,
+        response_inverse: ResponseInverse | None = None,
+        config_key: str = "controllers.agae",
+    ):
+        self.params = check_params(config_key, DEFAULTS, params)
+        _validate(self.params, config_key)
         p = self.params
         self.response_inverse = response_inverse if response_inverse is not None else srgb_uint8_to_linear
         self.target_linear = p["target_grey_pct"] / 100.0 * 2.0 ** p["ev_compensation"]

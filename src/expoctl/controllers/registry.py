@@ -21,8 +21,36 @@ def _agae(params: dict) -> Controller:
     return AgAeController(params)
 
 
+def _shin(params: dict) -> Controller:
+    from expoctl.controllers.shin import ShinController
+
+    return ShinController(params)
+
+
+def _shim(params: dict) -> Controller:
+    from expoctl.controllers.shim import ShimController
+
+    return ShimController(params)
+
+
+def _mean_intensity(params: dict) -> Controller:
+    from expoctl.controllers.mean_intensity import MeanIntensityController
+
+    return MeanIntensityController(params)
+
+
+def _fixed(params: dict) -> Controller:
+    from expoctl.controllers.fixed import FixedController
+
+    return FixedController(params)
+
+
 CONTROLLERS: dict[str, ControllerFactory] = {
     "agae": _agae,
+    "shin": _shin,
+    "shim": _shim,
+    "mean_intensity": _mean_intensity,
+    "fixed": _fixed,
 }
 
 

@@ -1,0 +1,247 @@
+"""Shin et al. 2019 noise-aware exposure control, run online (controllers.md §2).
+
+Metric: `metrics.shin_score` = α·K_g·G + (1−α)·E − β·N with the MATLAB constants (α 0.4, K_g 2, β 0.4, λ 1e3,
+δ 0.06, 10×10 grid). Search: Nelder–Mead (reflection 1, expansion 2, contraction 0.5, shrink 0.5, stop when the f
+spread < 1e-5 or after 50 evaluations) minimising f = −score.
+
+Online, every function evaluation costs one captured frame: the controller commands a simplex vertex, the camera
+applies it at t+1, and the image that comes back at t+1 (captured with exactly those settings) is scored and fed to
+the search. The search is a generator that yields points and receives their f.
+
+Deviations from the MATLAB demo (Test_nelder_mead_AE.m / nelder_mead_AE.m), all because frames are real and costly:
+- Coordinates are (gain in stops, log2 exposure): both axes in EV, so the simplex is well scaled (MATLAB mixes dB
+  and µs) and a gain of 0 dB does not collapse it. Initial vertices: x0 + s·e_gain and x0 + s·e_exposure with
+  s = log2(1 + h), MATLAB's h = −(1/1.7)(I/255) if I ≥ 128 else 1.7(1 − I/255) (I = mean grey); |s| ≥ 0.25 EV; a
+  vertex that would leave the valid box is mirrored to the other side of x0. Points are clipped into the box.
+- No grid snapping (the demo looks values up in a pre-captured grid); the current frame scores x0 for free; a
+  shrink does not re-evaluate the best vertex (MATLAB re-scores it, costing a frame).
+- Restart policy (the objective drifts while the simplex searches, and saturated frames make it flat):
+  * after convergence the controller holds the best point and keeps scoring every frame; it restarts from the
+    current point when the score moves by more than max(restart_abs_drift, restart_rel_drift·|score|) from the
+    converged value, or when the held image is badly exposed (mean grey < dark_mean or > bright_mean);
+  * during a search it restarts when the scene brightness estimate (linear mean of unclipped pixels divided by
+    the exposure product) has moved by more than restart_scene_ev since the search began;
+  * a restart from a badly exposed frame first moves x0 along exposure by MATLAB's h step (a mean-intensity
+    pre-correction; otherwise a fully saturated simplex is flat and the search would stall where it is).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Generator
+
+import numpy as np
+
+from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.metrics import luma_uint8, shin_score, srgb_uint8_to_linear
+from expoctl.controllers.params import check_params, require
+
+DB_PER_STOP = 20.0 * math.log10(2.0)
+_BOX_LO = np.array([GAIN_DB_MIN / DB_PER_STOP, math.log2(EXPOSURE_US_MIN)])
+_BOX_HI = np.array([GAIN_DB_MAX / DB_PER_STOP, math.log2(EXPOSURE_US_MAX)])
+
+DEFAULTS: dict = {
+    "alpha": 0.4,
+    "k_g": 2.0,
+    "beta": 0.4,
+    "lam": 1e3,
+    "delta": 0.06,
+    "n_cells": 10,
+    "reflection": 1.0,
+    "expansion": 2.0,
+    "contraction": 0.5,
+    "shrink": 0.5,
+    "tolerance": 1e-5,
+    "max_evaluations": 50,
+    "min_initial_step_ev": 0.25,
+    "restart_abs_drift": 0.05,
+    "restart_rel_drift": 0.1,
+    "restart_scene_ev": 1.5,
+    "dark_mean": 15.0,
+    "bright_mean": 240.0,
+}
+
+
+def to_point(s: Settings) -> np.ndarray:
+    return np.array([s.gain_db / DB_PER_STOP, math.log2(s.exposure_us)])
+
+
+def to_settings(x: np.ndarray) -> Settings:
+    return Settings(float(x[0]) * DB_PER_STOP, float(2.0 ** x[1])).clamped()
+
+
+def clip_box(x: np.ndarray) -> np.ndarray:
+    return np.clip(x, _BOX_LO, _BOX_HI)
+
+
+def matlab_h(mean_grey: float) -> float:
+    """Shin's initial-simplex step factor from the mean intensity I (0–255)."""
+    i = mean_grey / 255.0
+    return -(1.0 / 1.7) * i if mean_grey >= 128 else 1.7 * (1.0 - i)
+
+
+def nelder_mead(
+    simplex: np.ndarray, rho: float, xi: float, gam: float, sig: float, tol: float, max_evals: int
+) -> Generator[np.ndarray, float, tuple[np.ndarray, float]]:
+    """Nelder–Mead minimiser as a coroutine: yields a point, receives its f via send(); returns (best x, best f).
+    Follows the classic scheme (Nelder & Mead 1965) with the coefficients of Shin's MATLAB."""
+    x = np.array([clip_box(v) for v in simplex], dtype=np.float64)
+    n = x.shape[1]
+    f = np.empty(n + 1)
+    for i in range(n + 1):
+        f[i] = yield x[i]
+    n_evals = n + 1
+    order = np.argsort(f, kind="stable")
+    x, f = x[order], f[order]
+    while f[-1] - f[0] >= tol and n_evals < max_evals:
+        centroid = x[:n].mean(axis=0)
+        x_r = clip_box((1 + rho) * centroid - rho * x[n])
+        f_r = yield x_r
+        n_evals += 1
+        if f[0] <= f_r <= f[n - 1]:
+            x[n], f[n] = x_r, f_r
+        elif f_r < f[0]:
+            x_e = clip_box((1 + rho * xi) * centroid - rho * xi * x[n])
+            f_e = yield x_e
+            n_evals += 1
+            x[n], f[n] = (x_e, f_e) if f_e < f_r else (x_r, f_r)
+        else:
+            if f_r < f[n]:  # outside contraction
+                x_c = clip_box((1 + rho * gam) * centroid - rho * gam * x[n])
+                accept_limit = f_r
+            else:  # inside contraction
+                x_c = clip_box((1 - gam) * centroid + gam * x[n])
+                accept_limit = f[n]
+            f_c = yield x_c
+            n_evals += 1
+            if f_c <= accept_limit:
+                x[n], f[n] = x_c, f_c
+            else:  # shrink towards the best vertex (its f is kept: no extra frame)
+                for i in range(1, n + 1):
+                    x[i] = clip_box(sig * x[i] + (1 - sig) * x[0])
+                    f[i] = yield x[i]
+                    n_evals += 1
+        order = np.argsort(f, kind="stable")
+        x, f = x[order], f[order]
+    return x[0].copy(), float(f[0])
+
+
+class ShinController(Controller):
+    name = "shin"
+
+    def __init__(self, params: dict | None = None):
+        p = self.params = check_params("controllers.shin", DEFAULTS, params)
+        k = "controllers.shin."
+        require(0.0 <= p["alpha"] <= 1.0, k + "alpha", "must be in [0, 1]")
+        require(p["k_g"] >= 0 and p["beta"] >= 0, k + "beta", "k_g and beta must be >= 0")
+        require(p["lam"] > 0, k + "lam", "must be > 0")
+        require(0.0 <= p["delta"] < 1.0, k + "delta", "must be in [0, 1)")
+        require(p["n_cells"] >= 2, k + "n_cells", "must be >= 2")
+        require(p["reflection"] > 0, k + "reflection", "must be > 0")
+        require(p["expansion"] > max(1.0, p["reflection"]), k + "expansion", "must be > max(1, reflection)")
+        require(0 < p["contraction"] < 1, k + "contraction", "must be in (0, 1)")
+        require(0 < p["shrink"] < 1, k + "shrink", "must be in (0, 1)")
+        require(p["tolerance"] >= 0, k + "tolerance", "must be >= 0")
+        require(p["max_evaluations"] >= 3, k + "max_evaluations", "must be >= 3 (one simplex)")
+        require(p["min_initial_step_ev"] > 0, k + "min_initial_step_ev", "must be > 0")
+        require(p["restart_abs_drift"] >= 0 and p["restart_rel_drift"] >= 0, k + "restart_rel_drift", "must be >= 0")
+        require(p["restart_scene_ev"] > 0, k + "restart_scene_ev", "must be > 0")
+        require(0 <= p["dark_mean"] < p["bright_mean"] <= 255, k + "bright_mean", "need 0 <= dark_mean < bright_mean <= 255")
+        self.reset(Settings(0.0, 5000.0))
+
+    # ------------------------------------------------------------------------------------------------ public API
+    def reset(self, initial: Settings) -> None:
+        self._search: Generator | None = None
+        self._pending: np.ndarray | None = None  # point we commanded and whose image we wait for
+        self._hold: np.ndarray | None = None
+        self._hold_score = 0.0
+        self._search_scene_ev: float | None = None
+        self._command = initial.clamped()
+        self.n_restarts = -1  # the first search is not a restart
+
+    def score(self, image: np.ndarray) -> float:
+        p = self.params
+        return shin_score(image, p["alpha"], p["k_g"], p["beta"], p["lam"], p["delta"], p["n_cells"])[0]
+
+    def update(self, image: np.ndarray, applied: Settings) -> Settings:
+        applied = applied.clamped()
+        x_now = to_point(applied)
+        score = self.score(image)
+        mean = float(luma_uint8(image).mean())
+        scene_ev = self._scene_ev(image, applied)
+        if self._search is None and self._hold is None:
+            self._start_search(x_now, mean, scene_ev)
+        elif self._hold is not None:
+            drift = abs(score - self._hold_score)
+            limit = max(self.params["restart_abs_drift"], self.params["restart_rel_drift"] * abs(self._hold_score))
+            if drift > limit or self._badly_exposed(mean):
+                self._start_search(x_now, mean, scene_ev)
+        elif (
+            scene_ev is not None
+            and self._search_scene_ev is not None
+            and abs(scene_ev - self._search_scene_ev) > self.params["restart_scene_ev"]
+        ):
+            self._start_search(x_now, mean, scene_ev)
+        if self._search is not None:
+            self._advance(x_now, -score)
+            if self._search is None and self._badly_exposed(mean):
+                # converged on a flat (saturated/black) simplex: move on from the frame in hand right away
+                self._start_search(x_now, mean, scene_ev)
+                self._advance(x_now, -score)
+        return self._command
+
+    # ------------------------------------------------------------------------------------------------ internals
+    def _badly_exposed(self, mean: float) -> bool:
+        return mean < self.params["dark_mean"] or mean > self.params["bright_mean"]
+
+    @staticmethod
+    def _scene_ev(image: np.ndarray, s: Settings) -> float | None:
+        """log2 of (linear mean of unclipped pixels / exposure product): a brightness estimate of the scene that
+        does not depend on the settings; None when fewer than 5 % of pixels are unclipped."""
+        y = luma_uint8(image)
+        ok = (y > 8) & (y < 247)
+        if ok.mean() < 0.05:
+            return None
+        lin = float(srgb_uint8_to_linear(y[ok]).mean())
+        return math.log2(lin) - math.log2(s.exposure_us) - s.gain_db / DB_PER_STOP
+
+    def _start_search(self, x_now: np.ndarray, mean: float, scene_ev: float | None) -> None:
+        p = self.params
+        self.n_restarts += 1
+        h = matlab_h(mean)
+        step = math.log2(1.0 + h)
+        if abs(step) < p["min_initial_step_ev"]:
+            step = math.copysign(p["min_initial_step_ev"], step if step != 0 else 1.0)
+        x0 = x_now.copy()
+        if self._badly_exposed(mean):  # pre-correct along exposure so a flat (saturated/black) simplex can move
+            x0 = clip_box(x0 + np.array([0.0, step]))
+        vertices = [x0]
+        for axis in range(2):
+            v = x0.copy()
+            v[axis] += step
+            if v[axis] < _BOX_LO[axis] or v[axis] > _BOX_HI[axis]:
+                v[axis] = x0[axis] - step  # mirror: keeps the simplex non-degenerate at a range limit
+            vertices.append(clip_box(v))
+        self._search = nelder_mead(
+            np.array(vertices), p["reflection"], p["expansion"], p["contraction"], p["shrink"], p["tolerance"],
+            p["max_evaluations"],
+        )
+        self._hold = None
+        self._pending = self._search.send(None)
+        self._search_scene_ev = scene_ev
+
+    def _advance(self, x_now: np.ndarray, f_now: float) -> None:
+        """Feed the frame in hand to the search if it was taken at the pending point; command the next point."""
+        for _ in range(8):  # a new point equal to the one in hand is scored with the same frame
+            if not np.allclose(self._pending, x_now, atol=0.02):  # 0.02 EV: settings round-trip tolerance
+                break
+            try:
+                self._pending = self._search.send(f_now)
+            except StopIteration as done:
+                best_x, best_f = done.value
+                self._search, self._pending = None, None
+                self._hold, self._hold_score = best_x, -best_f
+                self._command = to_settings(best_x)
+                return
+        self._command = to_settings(self._pending)
