@@ -77,7 +77,9 @@ class ShimController(Controller):
         require(p["k_p"] > 0, k + "k_p", "must be > 0")
         require(0.0 < p["d"] <= 10.0, k + "d", "must be in (0, 10]")
         require(p["alpha_brighten"] > 0 and p["alpha_darken"] > 0, k + "alpha_darken", "alphas must be > 0")
-        require(p["f_number"] > 0, k + "f_number", "must be > 0")
+        # EV = log2(N²/(t·2^(g/6))) must stay > 0 over the whole range (t·2^(g/6) ≤ 0.03 s·32 < 1) or the
+        # multiplicative EV update reverses direction: N ≥ 1 guarantees it
+        require(p["f_number"] >= 1.0, k + "f_number", "must be >= 1 (keeps EV positive)")
         require(1 <= p["poly_order"] <= 6, k + "poly_order", "must be in [1, 6] (7 gamma samples)")
         require(p["process_every_n_frames"] >= 1, k + "process_every_n_frames", "must be >= 1")
         require(
