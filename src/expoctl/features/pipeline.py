@@ -25,6 +25,7 @@ import pandas as pd
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.frontend import PairCounts
+from expoctl.features.sumlog import SumLogGrid
 
 FRONTEND_NAMES = ("orb", "viso")
 FRAMES_COLUMNS = ("sequence", "frame_id", "camera", "image_path")
@@ -42,7 +43,7 @@ class FeaturesConfig:
     viso: dict = field(default_factory=dict)
     n_jobs: int = 1
     seed: int = 0
-    sumlog: dict = field(default_factory=dict)  # tuning grid, used by whoever tunes SumLog (see sumlog.py)
+    sumlog: SumLogGrid = SumLogGrid()  # SumLog tuning grid (sumlog.tune_sumlog); not used by compute_features
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "FeaturesConfig":
@@ -59,7 +60,7 @@ class FeaturesConfig:
                 raise ConfigError("features.frontends", f"unknown front end {name!r} (known: {', '.join(FRONTEND_NAMES)})")
         if len(set(fronts)) != len(fronts):
             raise ConfigError("features.frontends", f"lists a front end twice: {fronts!r}")
-        for key in ("orb", "viso", "sumlog"):
+        for key in ("orb", "viso"):
             if d.get(key) is not None and not isinstance(d[key], dict):
                 raise ConfigError(f"features.{key}", f"must be a mapping, got {d[key]!r}")
         n_jobs = d.get("n_jobs", 1)
@@ -69,7 +70,7 @@ class FeaturesConfig:
         if not isinstance(seed, int) or isinstance(seed, bool):
             raise ConfigError("features.seed", f"must be an integer, got {seed!r}")
         return cls(tuple(fronts), dict(d.get("orb") or {}), dict(d.get("viso") or {}), n_jobs, seed,
-                   dict(d.get("sumlog") or {}))
+                   SumLogGrid.from_dict(d.get("sumlog")))
 
 
 def make_frontend(name: str, params: dict | None = None):

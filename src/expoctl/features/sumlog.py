@@ -126,3 +126,40 @@ def tune_sumlog(
     scored = score_sumlog_grid(pairs, frontend, alphas, betas, rescale, seed)
     best_total = max(total for _, total in scored)
     return next(params for params, total in scored if total == best_total)
+
+
+@dataclass(frozen=True)
+class SumLogGrid:
+    """The `features.sumlog` config: the tuning grid and how many sequential training pairs to tune on."""
+
+    alphas: tuple[tuple[float, float, float], ...] = ((1 / 3, 1 / 3, 1 / 3),)
+    betas: tuple[float, ...] = (1.0,)
+    rescale: str = "range"
+    max_pairs: int = 100
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "SumLogGrid":
+        d = dict(d or {})
+        known = {"alphas", "betas", "rescale", "max_pairs"}
+        for k in d:
+            if k not in known:
+                raise ConfigError(f"features.sumlog.{k}", f"unknown key (known: {', '.join(sorted(known))})")
+        grid = cls()
+        alphas = d.get("alphas", grid.alphas)
+        betas = d.get("betas", grid.betas)
+        if not _is_seq(alphas) or len(alphas) == 0:
+            raise ConfigError("features.sumlog.alphas", f"must be a non-empty list of [α_R, α_G, α_B], got {alphas!r}")
+        if not _is_seq(betas) or len(betas) == 0:
+            raise ConfigError("features.sumlog.betas", f"must be a non-empty list of numbers, got {betas!r}")
+        rescale = d.get("rescale", grid.rescale)
+        try:
+            params = [SumLogParams(a, b, rescale) for a in alphas for b in betas]  # validates every grid point
+        except ConfigError as exc:  # name the grid's key (alphas/betas), not the single point's (alpha/beta)
+            key = {"alpha": "alphas", "beta": "betas"}.get(exc.key.rsplit(".", 1)[-1], "rescale")
+            raise ConfigError(f"features.sumlog.{key}", exc.problem) from None
+        if rescale == "range" and any(p.beta <= 0 for p in params):
+            raise ConfigError("features.sumlog.betas", "must all be > 0 with rescale 'range' (log 0 is unbounded)")
+        max_pairs = d.get("max_pairs", grid.max_pairs)
+        if not isinstance(max_pairs, int) or isinstance(max_pairs, bool) or max_pairs < 1:
+            raise ConfigError("features.sumlog.max_pairs", f"must be a positive integer, got {max_pairs!r}")
+        return cls(tuple(tuple(float(v) for v in a) for a in alphas), tuple(float(b) for b in betas), rescale, max_pairs)

@@ -1,0 +1,67 @@
+"""features stage: data/frames.parquet → data/features.parquet + data/matches.parquet (expoctl.features.pipeline)."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from expoctl.errors import InputError
+from expoctl.features.orb import OrbParams
+from expoctl.features.pipeline import FeaturesConfig, compute_features
+from expoctl.io import write_parquet
+from stages.common import PROJECT_ROOT, stage_main
+
+log = logging.getLogger(__name__)
+
+
+def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
+    root = Path(project_root or PROJECT_ROOT)
+    paths = cfg["paths"]
+    fcfg = FeaturesConfig.from_dict(cfg["features"])  # ConfigError before any work
+    frames_path = root / paths["frames"]
+    if not frames_path.is_file():
+        raise InputError(f"{frames_path}: frames table missing; run the ingest stage first")
+    try:
+        frames = pd.read_parquet(frames_path)
+    except Exception as exc:  # pyarrow raises several types for a damaged file
+        raise InputError(f"{frames_path}: not a readable Parquet file ({exc})") from None
+
+    effective = {"frontends": list(fcfg.frontends), "n_jobs": fcfg.n_jobs}
+    if "orb" in fcfg.frontends:
+        effective["orb"] = dataclasses.asdict(OrbParams.from_dict(fcfg.orb))  # with defaults filled in
+    tracker.log_params({"effective": effective})
+
+    t0 = time.perf_counter()
+    features, matches = compute_features(frames, root, fcfg, progress=True)
+    seconds = time.perf_counter() - t0
+    write_parquet(features, root / paths["features"])
+    write_parquet(matches, root / paths["matches"])
+
+    n_images = int(len(frames))
+    metrics = {"n_images": n_images, "n_pairs": int(len(matches) // max(len(fcfg.frontends), 1)),
+               "n_sequences": int(frames["sequence"].nunique()), "seconds": seconds,
+               "images_per_s": n_images / max(seconds, 1e-9)}
+    for name in fcfg.frontends:
+        f = features[features.frontend == name]
+        m = matches[matches.frontend == name]
+        same_camera = m[m.cam_from == m.cam_to]
+        metrics.update({
+            f"{name}.median_n_features": float(f.n_features.median()),
+            f"{name}.median_n_matches": float(m.n_matches.median()) if len(m) else 0.0,
+            f"{name}.median_n_inliers": float(m.n_inliers.median()) if len(m) else 0.0,
+            f"{name}.median_n_inliers_same_camera": float(same_camera.n_inliers.median()) if len(m) else 0.0,
+            f"{name}.min_n_inliers": float(m.n_inliers.min()) if len(m) else 0.0,
+        })
+    tracker.log_metrics(metrics)
+    log.info("%d images, %d pairs in %.1f s (%.1f images/s); %s", n_images, metrics["n_pairs"], seconds,
+             metrics["images_per_s"],
+             ", ".join(f"{n}: median {metrics[f'{n}.median_n_features']:.0f} features, "
+                       f"{metrics[f'{n}.median_n_inliers']:.0f} inliers" for n in fcfg.frontends))
+
+
+if __name__ == "__main__":
+    stage_main("features", run)
