@@ -7,7 +7,7 @@ import skimage.data
 
 from expoctl.errors import ConfigError
 from expoctl.features.frontend import FrontEnd
-from expoctl.features.orb import OrbFrontEnd, OrbParams
+from expoctl.features.orb import OrbFrontEnd, OrbParams, hamming_mutual_matches
 
 
 def _grey(rgb):
@@ -122,3 +122,26 @@ def test_bad_config_names_the_key(cfg, key):
 def test_config_round_trip():
     p = OrbParams.from_dict({"working_size": [320, 240], "match_nfeatures": 500})
     assert p.working_size == (320, 240) and p.match_nfeatures == 500 and p.count_nfeatures == 10000
+
+
+def test_mutual_matcher_on_a_constructed_example():
+    bits = lambda *on: np.packbits(np.isin(np.arange(256), on)).reshape(1, 32)  # noqa: E731  32-byte descriptor
+    a = np.concatenate([bits(), bits(0, 1, 2), bits(100, 101)])
+    b = np.concatenate([bits(0, 1, 2, 3), bits(100, 101), bits(200)])
+    # distances a×b: a0: 4,2,1 → b2; a1: 1,5,4 → b0; a2: 6,0,3 → b1.  b2's nearest a is a0 (1) → all mutual
+    ia, ib = hamming_mutual_matches(a, b)
+    assert ia.tolist() == [0, 1, 2] and ib.tolist() == [2, 0, 1]
+    # a lone candidate wanted by two queries: only its own nearest (ties → lower index) is kept
+    ia, ib = hamming_mutual_matches(np.concatenate([bits(7), bits(7)]), bits(7, 8))
+    assert ia.tolist() == [0] and ib.tolist() == [0]
+    # non-multiple-of-8 descriptor width and empty input
+    ia, ib = hamming_mutual_matches(np.array([[1, 2, 3]], np.uint8), np.array([[1, 2, 7], [0, 0, 0]], np.uint8))
+    assert ia.tolist() == [0] and ib.tolist() == [0]
+    assert hamming_mutual_matches(np.zeros((0, 32), np.uint8), b)[0].size == 0
+
+
+def test_mutual_matcher_equals_opencv_cross_check(stereo, orb):
+    a, b = orb.extract(stereo[0]), orb.extract(stereo[1])
+    ia, ib = hamming_mutual_matches(a.descriptors, b.descriptors)
+    cv_matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(a.descriptors, b.descriptors)
+    assert set(zip(ia.tolist(), ib.tolist())) == {(m.queryIdx, m.trainIdx) for m in cv_matches}
