@@ -168,3 +168,12 @@ def test_labels_stage_bad_input_leaves_old_output(tmp_path):
         run(cfg, FakeTracker())
     assert (tmp_path / "data/labels.parquet").read_text() == "old"
     assert not (tmp_path / "reports").exists()
+
+
+def test_findings_explain_brighter_match_targets():
+    frames, features, matches = rig_tables()
+    # pairs into an even (+1 EV) camera-2 frame win: the matcher prefers the brighter image
+    matches["n_inliers"] = np.where((matches.cam_to == 2) & (matches.frame_id % 2 == 1), 40, 5)
+    stats = compute_label_stats(compute_labels(frames, features, matches), frames)
+    assert stats["metrics"]["match"]["ev_offset_same_frame_camera2_targets"]["median"] == pytest.approx(1.0)
+    assert "winning camera-2 images are brighter than the reference (median +1.00 EV)" in stats["findings"][0]

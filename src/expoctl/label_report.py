@@ -136,16 +136,26 @@ def findings(stats: dict) -> list[str]:
         return ["No labelled time steps: every window was incomplete (sequences shorter than window + 1 frames?)."]
     share1 = m["match"]["camera_share"]["1"]
     ties = m["match"]["tie_share"]
-    next_med = m["match"]["ev_offset_next_reference"].get("median")
     if share1 > 0.5:
         why = (f"Why: camera 1's settings change slowly (median {_ev(stats['camera1_abs_ev_step'].get('median'), 1)} "
                f"per frame against {_ev(stats['camera2_abs_ev_step'].get('median'), 1)} for camera 2, which jumps to "
                f"another perturbation quadrant every frame), so a camera-1 → camera-1 pair has the least photometric "
                f"change between its images, and a brightness change within a pair costs matches.")
     else:
-        why = (f"Why: pairs ending on camera 2 won most often, which happens when the reference is far from the best "
-               f"exposure for matching (median offset of the match target from camera 1 at t+1: {_ev(next_med)}; "
-               f"the sign says which way) or when the reference itself changes settings quickly.")
+        cam2_med = m["match"]["ev_offset_same_frame_camera2_targets"].get("median")
+        if cam2_med is not None and cam2_med > 0.25:
+            how = (f"the winning camera-2 images are brighter than the reference (median {_ev(cam2_med)}): the "
+                   f"matcher gained more from the extra signal than it lost to the brightness change within the pair "
+                   f"(binary descriptors compare pixel pairs, so a global brightness change costs little until "
+                   f"pixels clip; longer exposures cost matches only through motion blur)")
+        elif cam2_med is not None and cam2_med < -0.25:
+            how = (f"the winning camera-2 images are darker than the reference (median {_ev(cam2_med)}): the "
+                   f"reference clips highlights that carry matchable texture")
+        else:
+            how = (f"the winning camera-2 images are about as bright as the reference (median {_ev(cam2_med)}; "
+                   f"reference moves {_ev(stats['camera1_abs_ev_step'].get('median'), 0)} per frame), so camera "
+                   f"choice is close to noise between near-equal counts")
+        why = f"Why: {how}."
     out.append(
         f"M_match targets come from the reference camera in {_pct(share1)} of time steps (authors: mostly the "
         f"reference) — {'consistent' if share1 > 0.5 else 'NOT consistent'} with the paper. "
@@ -174,13 +184,14 @@ def findings(stats: dict) -> list[str]:
         f"{'consistent' if ok else 'NOT consistent'} with the paper. {why}. The available perturbations "
         f"(camera 2 − camera 1) span {_ev(pert.get('p10'))} … {_ev(pert.get('p90'))} (p10 … p90).")
     h = m["hybrid"]
-    step = {k: m[k]["consecutive_abs_ev_change"].get("median") for k in METRICS}
+    # mean, not median: with overlapping windows most consecutive targets are the same image, so medians are 0
+    step = {k: m[k]["consecutive_abs_ev_change"].get("mean") for k in METRICS}
     steadier = step["match"] is not None and step["feat"] is not None and step["match"] <= step["feat"]
     out.append(
         f"Consecutive targets are equal in {_pct(m['match']['consecutive_equal_settings'])} of steps for M_match, "
         f"{_pct(f['consecutive_equal_settings'])} for M_feat and {_pct(h['consecutive_equal_settings'])} for "
-        f"M_hybrid; the target moves a median {_ev(step['match'], 1)}, {_ev(step['feat'], 1)} and "
-        f"{_ev(step['hybrid'], 1)} per step (the paper: M_feat targets are the more variable, M_match the more "
+        f"M_hybrid; the target moves a mean {_ev(step['match'], 0)}, {_ev(step['feat'], 0)} and "
+        f"{_ev(step['hybrid'], 0)} per step (the paper: M_feat targets are the more variable, M_match the more "
         f"stable) — {'consistent' if steadier else 'NOT consistent'}.")
     return out
 
@@ -223,8 +234,8 @@ def render_markdown(stats: dict) -> str:
     row("gain offset vs reference at t+1: median (p10 … p90)",
         lambda s: _dist(s["gain_offset_db_next_reference"], "dB"))
     row("consecutive targets with equal settings", lambda s: _pct(s["consecutive_equal_settings"]))
-    row("target change between consecutive steps: median |ΔEV| (p90)",
-        lambda s: f"{_ev(s['consecutive_abs_ev_change']['median'], 0)} "
+    row("target change between consecutive steps: mean |ΔEV| (p90)",
+        lambda s: f"{_ev(s['consecutive_abs_ev_change']['mean'], 0)} "
                   f"({_ev(s['consecutive_abs_ev_change']['p90'], 0)})")
     row("consecutive targets from the same image", lambda s: _pct(s["consecutive_same_image"]))
     row("ties (broken towards earliest frame, camera 1)", lambda s: _pct(s["tie_share"]))
@@ -266,7 +277,7 @@ def flat_metrics(stats: dict) -> dict[str, float]:
                          ("median_ev_offset_same_frame", (s.get("ev_offset_same_frame") or {}).get("median")),
                          ("median_ev_offset_next_reference", s["ev_offset_next_reference"].get("median")),
                          ("consecutive_equal_settings", s.get("consecutive_equal_settings")),
-                         ("median_abs_ev_change", s["consecutive_abs_ev_change"].get("median")),
+                         ("mean_abs_ev_change", s["consecutive_abs_ev_change"].get("mean")),
                          ("tie_share", s.get("tie_share"))):
             if val is not None:
                 out[f"{metric}.{key}"] = float(val)
