@@ -156,3 +156,13 @@ def test_bad_config(params, key):
     with pytest.raises(ConfigError) as e:
         ShinController(params)
     assert e.value.key == key
+
+
+def test_restarts_when_the_camera_does_not_apply_the_commanded_vertex():
+    c = ShinController({"restart_scene_ev": 1e9})
+    fixed = Settings(3.0, 4000.0)  # the camera ignores every command
+    c.reset(fixed)
+    img = np.random.default_rng(0).integers(40, 200, (32, 32, 3)).astype(np.uint8)
+    for _ in range(12):
+        c.update(img, fixed)
+    assert c.n_restarts >= 3  # one restart per 3 mismatched frames, never stuck waiting for a frame that won't come

@@ -21,6 +21,8 @@ Deviations from the MATLAB demo (Test_nelder_mead_AE.m / nelder_mead_AE.m), all 
     converged value, or when the held image is badly exposed (mean grey < dark_mean or > bright_mean);
   * during a search it restarts when the scene brightness estimate (linear mean of unclipped pixels divided by
     the exposure product) has moved by more than restart_scene_ev since the search began;
+  * a search restarts from the frame in hand when `max_mismatched_frames` frames in a row were not captured at
+    the commanded vertex (the camera did not apply it);
   * a restart from a badly exposed frame first moves x0 along exposure by MATLAB's h step (a mean-intensity
     pre-correction; otherwise a fully saturated simplex is flat and the search would stall where it is).
 """
@@ -60,6 +62,7 @@ DEFAULTS: dict = {
     "restart_scene_ev": 1.5,
     "dark_mean": 15.0,
     "bright_mean": 240.0,
+    "max_mismatched_frames": 3,  # frames not taken at the commanded vertex before the search restarts from them
 }
 
 
@@ -148,6 +151,7 @@ class ShinController(Controller):
         require(p["restart_abs_drift"] >= 0 and p["restart_rel_drift"] >= 0, k + "restart_rel_drift", "must be >= 0")
         require(p["restart_scene_ev"] > 0, k + "restart_scene_ev", "must be > 0")
         require(0 <= p["dark_mean"] < p["bright_mean"] <= 255, k + "bright_mean", "need 0 <= dark_mean < bright_mean <= 255")
+        require(p["max_mismatched_frames"] >= 1, k + "max_mismatched_frames", "must be >= 1")
         self.reset(Settings(0.0, 5000.0))
 
     # ------------------------------------------------------------------------------------------------ public API
@@ -170,6 +174,7 @@ class ShinController(Controller):
         score = self.score(image)
         mean = float(luma_uint8(image).mean())
         scene_ev = self._scene_ev(image, applied)
+        self._last_mean, self._last_scene_ev = mean, scene_ev
         if self._search is None and self._hold is None:
             self._start_search(x_now, mean, scene_ev)
         elif self._hold is not None:
@@ -223,6 +228,7 @@ class ShinController(Controller):
             if v[axis] < _BOX_LO[axis] or v[axis] > _BOX_HI[axis]:
                 v[axis] = x0[axis] - step  # mirror: keeps the simplex non-degenerate at a range limit
             vertices.append(clip_box(v))
+        self._mismatches = 0
         self._search = nelder_mead(
             np.array(vertices), p["reflection"], p["expansion"], p["contraction"], p["shrink"], p["tolerance"],
             p["max_evaluations"],
@@ -232,10 +238,16 @@ class ShinController(Controller):
         self._search_scene_ev = scene_ev
 
     def _advance(self, x_now: np.ndarray, f_now: float) -> None:
-        """Feed the frame in hand to the search if it was taken at the pending point; command the next point."""
+        """Feed the frame in hand to the search if it was taken at the pending point; command the next point.
+        If the camera keeps delivering frames at other settings (it did not apply ours), restart from them."""
+        if not np.allclose(self._pending, x_now, atol=0.02):  # 0.02 EV: settings round-trip tolerance
+            self._mismatches += 1
+            if self._mismatches >= self.params["max_mismatched_frames"]:
+                self._start_search(x_now, self._last_mean, self._last_scene_ev)
         for _ in range(8):  # a new point equal to the one in hand is scored with the same frame
-            if not np.allclose(self._pending, x_now, atol=0.02):  # 0.02 EV: settings round-trip tolerance
+            if not np.allclose(self._pending, x_now, atol=0.02):
                 break
+            self._mismatches = 0
             try:
                 self._pending = self._search.send(f_now)
             except StopIteration as done:
