@@ -154,3 +154,111 @@ class FunctionScene:
 
     def timestamp_ns(self, frame_index: int) -> int:
         return self._t0_ns + int(round(frame_index * self._period_ns))
+
+
+# --- the simulated rig: geometry/config, world scene, sensors --------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The dual-camera rig (config group `rig`): geometry, rate, render size and camera 2's perturbation."""
+
+    baseline_m: float = 0.0392
+    fps: float = 15.0
+    width: int = 320
+    height: int = 240
+    hfov_deg: float = 70.0
+    perturbation: PerturbationConfig = PerturbationConfig()
+
+    @classmethod
+    def from_dict(cls, d: dict | None, key: str = "rig") -> "RigConfig":
+        from expoctl.errors import ConfigError
+
+        if d is None:
+            d = {}
+        if not isinstance(d, dict):
+            raise ConfigError(key, f"must be a mapping, got {d!r}")
+        known = {"baseline_m", "fps", "width", "height", "hfov_deg", "perturbation"}
+        for k in d:
+            if k not in known:
+                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
+        kw: dict = {}
+        for k in ("baseline_m", "fps", "hfov_deg"):
+            if k in d:
+                v = d[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                    raise ConfigError(f"{key}.{k}", f"must be a positive number, got {v!r}")
+                kw[k] = float(v)
+        for k in ("width", "height"):
+            if k in d:
+                v = d[k]
+                if isinstance(v, bool) or not isinstance(v, int) or not 16 <= v <= 8192:
+                    raise ConfigError(f"{key}.{k}", f"must be an integer number of pixels in [16, 8192], got {v!r}")
+                kw[k] = v
+        if kw.get("hfov_deg", 70.0) >= 170.0:
+            raise ConfigError(f"{key}.hfov_deg", f"a pinhole camera needs a field of view below 170°, got {kw['hfov_deg']}")
+        kw["perturbation"] = PerturbationConfig.from_dict(d.get("perturbation"), f"{key}.perturbation")
+        return cls(**kw)
+
+    def metadata(self) -> dict:
+        """The `rig` block of sequence.yaml: baseline_m, fps, resolution [w, h], intrinsics {fx, fy, cx, cy}."""
+        f = 0.5 * self.width / math.tan(math.radians(self.hfov_deg) / 2.0)
+        return {
+            "baseline_m": self.baseline_m,
+            "fps": self.fps,
+            "resolution": [self.width, self.height],
+            "intrinsics": {"fx": f, "fy": f, "cx": (self.width - 1) / 2.0, "cy": (self.height - 1) / 2.0},
+            "hfov_deg": self.hfov_deg,
+        }
+
+
+class RouteScene:
+    """A `Scene` of the simulated world: a city's trajectory rendered for camera 1 (at the rig origin) and camera 2
+    (`baseline_m` to its right), with motion blur over each camera's own exposure."""
+
+    def __init__(self, city, trajectory, rig: RigConfig):
+        from expoctl.world import Renderer
+
+        self.trajectory = trajectory
+        self.renderer = Renderer(city, rig.width, rig.height, rig.hfov_deg)
+        self._offset_m = {1: 0.0, 2: rig.baseline_m}
+
+    def luminance(self, frame_index: int, exposure_us: float, camera: int) -> np.ndarray:
+        return self.renderer.render_exposure(self.trajectory, frame_index, exposure_us, self._offset_m[camera])
+
+    def timestamp_ns(self, frame_index: int) -> int:
+        return int(self.trajectory.timestamps_ns[frame_index])
+
+
+def make_sensors(sensor_cfg: dict | None, rig: RigConfig, n_cameras: int, randomisation: float, seed: int):
+    """`n_cameras` identical sensors (one randomised parameter set, drawn from `seed`; each camera its own
+    fixed-pattern noise) and the parameter set as a plain dict for sequence.yaml."""
+    from expoctl.camera.sensor import Sensor, SensorConfig
+
+    base = SensorConfig.from_dict(sensor_cfg or {})
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), _SENSOR_STREAM, 0xC0F]))
+    config = base.randomised(rng, randomisation) if randomisation > 0 else base
+    sensors = [Sensor(config, rig.height, rig.width, seed=_sensor_unit_seed(seed, c)) for c in range(1, n_cameras + 1)]
+    return sensors, _config_dict(config)
+
+
+def clip_sections(sections: Sequence[dict], start: int, stop: int) -> list[dict]:
+    """Sections of trajectory frames [start, stop) re-indexed to the window (end_frame inclusive, as in the world)."""
+    out = []
+    for s in sections:
+        a, b = max(int(s["start_frame"]), start), min(int(s["end_frame"]), stop - 1)
+        if a <= b:
+            out.append({"start_frame": a - start, "end_frame": b - start, "kind": str(s["kind"])})
+    return out
+
+
+def _sensor_unit_seed(seed: int, camera: int) -> int:
+    return int(np.random.SeedSequence([int(seed), _SENSOR_STREAM, 0xF1D, camera]).generate_state(1)[0])
+
+
+def _config_dict(config) -> dict:
+    if hasattr(config, "to_dict"):
+        return config.to_dict()
+    import dataclasses
+
+    return dataclasses.asdict(config)
