@@ -166,3 +166,12 @@ def test_restarts_when_the_camera_does_not_apply_the_commanded_vertex():
     for _ in range(12):
         c.update(img, fixed)
     assert c.n_restarts >= 3  # one restart per 3 mismatched frames, never stuck waiting for a frame that won't come
+
+
+def test_black_frames_at_the_exposure_limit_raise_gain():
+    c = ShinController()
+    s = Settings(0.0, 30000.0)
+    c.reset(s)
+    for _ in range(4):
+        s = c.update(_grey(0), s)
+    assert s.gain_db > 5.0 and s.exposure_us == pytest.approx(30000.0, rel=0.5)

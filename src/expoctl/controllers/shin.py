@@ -219,8 +219,9 @@ class ShinController(Controller):
         if abs(step) < p["min_initial_step_ev"]:
             step = math.copysign(p["min_initial_step_ev"], step if step != 0 else 1.0)
         x0 = x_now.copy()
-        if self._badly_exposed(mean):  # pre-correct along exposure so a flat (saturated/black) simplex can move
-            x0 = clip_box(x0 + np.array([0.0, step]))
+        if self._badly_exposed(mean):  # pre-correct so a flat (saturated/black) simplex can move:
+            x0 = clip_box(x0 + np.array([0.0, step]))  # along exposure first,
+            x0 = clip_box(x0 + np.array([step - (x0[1] - x_now[1]), 0.0]))  # gain takes what exposure could not
         vertices = [x0]
         for axis in range(2):
             v = x0.copy()
