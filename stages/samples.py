@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 
+from expoctl.errors import InputError
 from expoctl.io import write_parquet
 from expoctl.samples import SampleConfig, build_samples, summarise_samples
 from stages.common import PROJECT_ROOT, stage_main
@@ -19,6 +20,9 @@ def run(cfg: dict, tracker) -> None:
     frames = read_table(PROJECT_ROOT / paths["frames"], paths["frames"], "ingest")
     labels = read_table(PROJECT_ROOT / paths["labels"], paths["labels"], "labels")
     samples = build_samples(frames, labels, scfg, names={"frames": str(paths["frames"]), "labels": str(paths["labels"])})
+    if samples.empty:
+        raise InputError(f"{paths['labels']}: no labelled time step t has frames t−1 and t−2 in its sequence, "
+                         f"so there are no samples")
     write_parquet(samples, PROJECT_ROOT / paths["samples"])
     summary = summarise_samples(samples)
     tracker.log_params({"effective.samples": dataclasses.asdict(scfg)})

@@ -168,6 +168,11 @@ def test_labels_stage_bad_input_leaves_old_output(tmp_path):
         run(cfg, FakeTracker())
     assert (tmp_path / "data/labels.parquet").read_text() == "old"
     assert not (tmp_path / "reports").exists()
+    for name, df in zip(("frames", "features", "matches"), rig_tables(4)):  # too short for one window
+        df.to_parquet(cfg["paths"][name])
+    with pytest.raises(InputError, match=r"no time step has a complete window t\+1 … t\+4 \(4 frames"):
+        run(cfg, FakeTracker())
+    assert (tmp_path / "data/labels.parquet").read_text() == "old"
 
 
 def test_findings_explain_brighter_match_targets():

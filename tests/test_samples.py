@@ -93,3 +93,38 @@ def test_bad_input():
         build_samples(frames.drop(index=5), labels)
     with pytest.raises(ConfigError, match="samples.metric"):
         SampleConfig.from_dict({"metric": "best"})
+
+
+class FakeTracker:
+    def __init__(self):
+        self.params, self.metrics = {}, {}
+
+    def log_params(self, params):
+        self.params.update(params)
+
+    def log_metrics(self, metrics, step=None):
+        self.metrics.update(metrics)
+
+    def log_artifact(self, path, artifact_path=None):
+        pass
+
+
+def test_samples_stage(tmp_path):
+    from stages.samples import run
+
+    paths = {"frames": str(tmp_path / "frames.parquet"), "labels": str(tmp_path / "labels.parquet"),
+             "samples": str(tmp_path / "samples.parquet")}
+    cfg = {"paths": paths, "samples": {"metric": "match"}}
+    frames_table(6, "a", "validation").to_parquet(paths["frames"])
+    labels_table("a", [0, 1]).to_parquet(paths["labels"])
+    with pytest.raises(InputError, match=r"labels.parquet: no labelled time step t has frames t−1 and t−2"):
+        run(cfg, FakeTracker())
+    assert not (tmp_path / "samples.parquet").exists()
+    labels_table("a", range(6)).to_parquet(paths["labels"])
+    tracker = FakeTracker()
+    run(cfg, tracker)
+    samples = pd.read_parquet(paths["samples"])
+    assert len(samples) == 4 * 8 and set(samples.metric) == {"match"} and set(samples.split) == {"validation"}
+    assert np.allclose(samples[samples.frame_id == 5].target_gain_norm, 6.0 / 30.0)  # match label: f + 1
+    assert tracker.params["effective.samples"] == {"metric": "match"}
+    assert tracker.metrics["validation"]["n_time_steps"] == 4 and tracker.metrics["n_samples"] == 32
