@@ -30,7 +30,8 @@ class PreviewFrame:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--city", required=True, help="city name (expoctl.world.load_city)")
+    parser.add_argument("--city", required=True,
+                        help="city name (train, validation, test) or a YAML city config file (may say `base: <name>`)")
     parser.add_argument("--traversal", type=int, default=0, help="traversal index of the city's route (default 0)")
     parser.add_argument("--frames", type=int, default=None, help="number of frames (default: the whole route)")
     parser.add_argument("--start", type=int, default=0, help="first frame shown; earlier frames warm the controller up")
@@ -76,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.start < 0:
         raise InputError(f"--start must be >= 0, got {args.start}")
 
-    city = load_city(args.city)
+    city = load_city(_city_spec(args.city))
     n_total = None if args.frames is None else args.start + args.frames
     traj = city.traversal(args.traversal, n_total, rig.fps, args.seed)
     n_total = len(traj.timestamps_ns)
@@ -101,6 +102,21 @@ def run(args: argparse.Namespace) -> int:
         write_video(frames, args.video, rig.fps)
         print(f"wrote {args.video}")
     return 0
+
+
+def _city_spec(city: str) -> str | dict:
+    """A city name as is; a path to a YAML file → its mapping."""
+    import yaml
+
+    if city.endswith((".yaml", ".yml")) or Path(city).is_file():
+        path = Path(city)
+        if not path.is_file():
+            raise InputError(f"{path}: city config file not found")
+        spec = yaml.safe_load(path.read_text())
+        if not isinstance(spec, dict):
+            raise InputError(f"{path}: a city config must be a YAML mapping")
+        return spec
+    return city
 
 
 # --- pictures -------------------------------------------------------------------------------------------------------
