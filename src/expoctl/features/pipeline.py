@@ -291,8 +291,10 @@ def _run_tasks(tasks: list[_SequenceTask], n_jobs: int, progress: bool) -> list[
                 results[i] = _process_sequence(task)
                 bar.update(len(task.paths))
             return results  # type: ignore[return-value]
-        # spawn: workers start clean (no inherited OpenCV/torch thread state), and it works the same everywhere
-        ctx = multiprocessing.get_context("spawn")
+        # fork where the OS has it: workers inherit the imported modules and numba's compiled matcher instead of
+        # re-importing them (seconds per worker on a busy machine). OpenCV re-creates its thread pool after fork, and
+        # the workers use no OpenMP/torch, so nothing inherited can deadlock. Elsewhere, spawn.
+        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
         with cf.ProcessPoolExecutor(max_workers=min(n_jobs, len(tasks)), mp_context=ctx,
                                     initializer=_worker_init) as pool:
             futures = {pool.submit(_process_sequence, task): i for i, task in enumerate(tasks)}
