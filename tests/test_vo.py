@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import InputError
-from expoctl.vo import absolute_trajectory_error, relative_pose, relative_pose_error, track_sequence, umeyama_rigid
+from expoctl.vo import absolute_trajectory_error, intrinsics_matrix, relative_pose, relative_pose_error, track_sequence, umeyama_rigid
 
 W, H, F = 320, 240, 260.0
 K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
@@ -142,3 +142,12 @@ def test_bad_inputs_name_the_problem():
         track_sequence([frames[0], frames[1][:100]], K)
     with pytest.raises(InputError, match="frame 0"):
         track_sequence([frames[0].astype(np.float32)], K)
+
+
+def test_intrinsics_matrix_from_sequence_yaml():
+    K1 = intrinsics_matrix({"fx": 500, "fy": 510, "cx": 319.5, "cy": 239.5})
+    assert K1.tolist() == [[500, 0, 319.5], [0, 510, 239.5], [0, 0, 1]]
+    K_half = intrinsics_matrix({"fx": 500, "fy": 510, "cx": 319.5, "cy": 239.5}, scale=0.5)
+    assert K_half[0, 0] == 250 and K_half[0, 2] == pytest.approx(159.5) and K_half[1, 2] == pytest.approx(119.5)
+    with pytest.raises(InputError, match="fx"):
+        intrinsics_matrix({"fy": 1, "cx": 1, "cy": 1})

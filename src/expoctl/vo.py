@@ -47,6 +47,16 @@ class TrackingResult:
     n_matches: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
 
+def intrinsics_matrix(intrinsics: dict, scale: float = 1.0) -> np.ndarray:
+    """K from a raw sequence's `rig.intrinsics` {fx, fy, cx, cy} (pixels), optionally for images resized by
+    `scale` (pixel-centre convention: c' = (c + 0.5)·scale − 0.5)."""
+    try:
+        fx, fy, cx, cy = (float(intrinsics[k]) for k in ("fx", "fy", "cx", "cy"))
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"vo: rig.intrinsics must have numeric fx, fy, cx, cy ({e})") from None
+    return np.array([[fx * scale, 0.0, (cx + 0.5) * scale - 0.5], [0.0, fy * scale, (cy + 0.5) * scale - 0.5], [0, 0, 1.0]])
+
+
 def _grey(image: np.ndarray, index: int) -> np.ndarray:
     a = np.asarray(image)
     if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] == 3)):
