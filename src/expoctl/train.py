@@ -48,6 +48,7 @@ class TrainConfig:
     max_train_samples: int | None = None  # random subset (for quick studies); None = all
     max_validation_samples: int | None = None
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
+    mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "train") -> "TrainConfig":
@@ -85,6 +86,7 @@ class TrainConfig:
             ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
+            ("mlflow_model_format", self.mlflow_model_format in ("pt2", "pickle"), "must be pt2 or pickle"),
             ("max_train_samples", self.max_train_samples is None or self.max_train_samples >= 2, "must be ≥ 2 or null"),
             ("max_validation_samples", self.max_validation_samples is None or self.max_validation_samples >= 1,
              "must be ≥ 1 or null"),
@@ -125,6 +127,16 @@ def _dist_info() -> tuple[int, int]:
     if dist.is_available() and dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1
+
+
+@torch.no_grad()
+def _average_bn_buffers(model: nn.Module, world: int) -> None:
+    """Average batch-norm running statistics over processes, so every replica evaluates with the same model
+    (DDP only broadcasts buffers at the start of each forward; the last batch leaves them rank-specific)."""
+    for name, buf in model.named_buffers():
+        if buf.dtype.is_floating_point and ("running_mean" in name or "running_var" in name):
+            dist.all_reduce(buf)
+            buf /= world
 
 
 @torch.no_grad()
@@ -220,6 +232,8 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
             opt.step()
             loss_sum += loss.item() * len(rows)
             n_sum += len(rows)
+        if world > 1:
+            _average_bn_buffers(model, world)
         dt = time.perf_counter() - t0
         total_train_time += dt
         samples_seen += n_sum

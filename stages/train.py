@@ -1,0 +1,162 @@
+"""train stage: samples + image store → models/controller.pt, models/controller.onnx, reports/train.json.
+
+Reads only `seed`, `model`, `train` and its paths from configs/resolved.yaml. Per-epoch metrics go to the stage's
+MLflow run; the final metrics put the validation error (gain in dB, exposure in EV) next to the constant-predictor
+baseline; the model is logged with mlflow.pytorch.log_model.
+
+Scale-out: the same command runs data-parallel under torchrun, e.g.
+    torchrun --standalone --nproc_per_node 2 -m stages.train
+(gloo backend on CPU; `train.batch_size` stays the global batch). Only rank 0 opens the MLflow run and writes files.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+
+from expoctl.dataset import load_sample_sets_from_files
+from expoctl.errors import InputError
+from expoctl.io import write_json
+from expoctl.model import ModelConfig
+from expoctl.train import TrainConfig, checkpoint_dict, export_onnx, fit, predict
+
+log = logging.getLogger("expoctl.train")
+
+
+def _path(p) -> Path:
+    from stages.common import PROJECT_ROOT
+
+    p = Path(p)
+    return p if p.is_absolute() else PROJECT_ROOT / p
+
+
+def configs(cfg: dict) -> tuple[ModelConfig, TrainConfig, int]:
+    """Validate the stage's config sections before any work."""
+    from expoctl.errors import ConfigError
+
+    seed = cfg.get("seed", 0)
+    if not isinstance(seed, int):
+        raise ConfigError("seed", f"must be an int, got {seed!r}")
+    return ModelConfig.from_dict(cfg.get("model")), TrainConfig.from_dict(cfg.get("train")), seed
+
+
+def train_from_config(cfg: dict, on_epoch=None, sets=None):
+    """Load data (unless `sets` given) and fit; shared by this stage and the sweep. Returns (result, sets, configs)."""
+    model_cfg, train_cfg, seed = configs(cfg)
+    paths = cfg["paths"]
+    if sets is None:
+        sets = load_sample_sets_from_files(_path(paths["samples"]), _path(paths["frames"]), _path(paths["images_dir"]),
+                                           model_cfg.input_size)
+    for split in ("train", "validation"):
+        if split not in sets:
+            raise InputError(f"{paths['samples']}: no samples with split '{split}'")
+    result = fit(model_cfg, train_cfg, sets["train"], sets["validation"], seed, on_epoch=on_epoch, log=log.info)
+    return result, sets, (model_cfg, train_cfg, seed)
+
+
+def run(cfg: dict, tracker):
+    """The stage (rank 0 writes and logs); returns the TrainResult."""
+    rank = dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
+    result, sets, (model_cfg, train_cfg, seed) = train_from_config(
+        cfg, on_epoch=lambda epoch, m: tracker.log_metrics(m, step=epoch))
+    if rank == 0:
+        _write_outputs(cfg, tracker, result, sets, model_cfg, train_cfg, seed)
+    if dist.is_available() and dist.is_initialized():
+        dist.barrier()
+    return result
+
+
+def _write_outputs(cfg, tracker, result, sets, model_cfg, train_cfg, seed) -> None:
+    from expoctl.io import atomic_path
+
+    m = result.metrics
+    log.info("validation: gain %.2f dB (constant %.2f), exposure %.3f EV (constant %.3f), loss %.4f vs %.4f",
+             m["val_gain_mae_db"], m["baseline_val_gain_mae_db"], m["val_exposure_mae_ev"],
+             m["baseline_val_exposure_mae_ev"], m["val_loss"], m["baseline_val_loss"])
+    if not m["beats_baseline"]:
+        log.warning("the model does NOT beat the constant predictor on validation loss")
+    model_path = _path(cfg["paths"]["model"])
+    onnx_path = model_path.with_suffix(".onnx")
+    report_path = _path(cfg["paths"]["reports_dir"]) / "train.json"
+    with atomic_path(model_path, suffix=".pt") as tmp:
+        torch.save(checkpoint_dict(result, model_cfg, train_cfg, sets["train"].store_hw, seed), tmp)
+    export_onnx(result.model, onnx_path, train_cfg.onnx_exporter)
+    onnx_err = _onnx_agreement(onnx_path, sets["validation"], result.model)
+    if not onnx_err < 1e-4:
+        raise RuntimeError(f"{onnx_path}: ONNX outputs differ from torch by {onnx_err:.2e} (> 1e-4)")
+    m = {**m, "onnx_max_abs_diff": onnx_err}
+    write_json({"metrics": m, "history": result.history}, report_path)
+    # "final." keeps these apart from the per-epoch series of the same names
+    tracker.log_metrics({f"final.{k}": float(v) for k, v in m.items()})
+    for p in (model_path, onnx_path, report_path):
+        tracker.log_artifact(p)
+    _log_model(result.model, model_cfg, train_cfg.mlflow_model_format)
+
+
+def _onnx_agreement(onnx_path: Path, data, model, n: int = 64) -> float:
+    """Max |ONNX − torch| on up to n real validation samples."""
+    import onnxruntime as ort
+
+    rows = np.arange(min(n, len(data)))
+    x, _ = data.batch(rows)
+    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    return float(np.abs(sess.run(None, {"input": x.numpy()})[0] - predict(model, data, rows=rows)).max())
+
+
+def _log_model(model, model_cfg, serialization_format: str) -> None:
+    """mlflow.pytorch.log_model on the active run (skipped when there is none, e.g. a test's fake tracker)."""
+    import mlflow
+
+    if mlflow.active_run() is None:
+        return
+    import mlflow.pytorch
+
+    h, w = model_cfg.input_size
+    example = np.zeros((1, 15, h, w), np.float32)
+    # explicit pip requirements: inferring them imports the whole environment (slow)
+    mlflow.pytorch.log_model(model, name="model", input_example=example,
+                             pip_requirements=[f"torch=={torch.__version__.split('+')[0]}", f"numpy=={np.__version__}"],
+                             serialization_format=serialization_format)
+
+
+def _worker_main() -> None:
+    """Ranks > 0 under torchrun: same work, no MLflow run, no outputs."""
+
+    class _NoTracker:
+        def log_params(self, *a, **k): ...
+        def log_metrics(self, *a, **k): ...
+        def log_artifact(self, *a, **k): ...
+
+    from stages.common import load_resolved
+
+    try:
+        run(load_resolved(), _NoTracker())
+    except InputError as exc:
+        print(f"expoctl train (rank {dist.get_rank()}): error: {exc}", file=sys.stderr)
+        sys.exit(2)
+
+
+def main() -> None:
+    from stages.common import stage_main
+
+    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    if distributed:
+        dist.init_process_group("gloo")
+    try:
+        if not distributed or dist.get_rank() == 0:
+            stage_main("train", run)
+        else:
+            _worker_main()
+    finally:
+        if distributed:
+            dist.destroy_process_group()
+
+
+if __name__ == "__main__":
+    main()

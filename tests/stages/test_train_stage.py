@@ -1,0 +1,107 @@
+"""The train stage: outputs, MLflow logging (temporary SQLite store), and data-parallel runs under torchrun."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import mlflow
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from expoctl.errors import ConfigError
+from expoctl.synthetic_data import make_synthetic_dataset
+from expoctl.train import load_checkpoint
+from stages import train as stage
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def make_cfg(tmp: Path, **train) -> dict:
+    p = make_synthetic_dataset(tmp / "data", n_sequences=4, n_frames=10, hw=(32, 32), seed=0)
+    return {
+        "seed": 0,
+        "model": {"input_size": 32, "conv_widths": [8, 8, 16, 16], "conv_kernels": [3, 3, 3], "pool": 2,
+                  "fc_widths": [16, 8, 8], "dropout": 0.1},
+        "train": {"lr": 3e-3, "batch_size": 32, "epochs": 3, "patience": 5, "num_threads": 1,
+                  "mlflow_model_format": "pickle", **train},
+        "paths": {"samples": str(p["samples"]), "frames": str(p["frames"]), "images_dir": str(p["images_dir"]),
+                  "model": str(tmp / "models" / "controller.pt"), "reports_dir": str(tmp / "reports")},
+    }
+
+
+@pytest.fixture()
+def mlflow_store(tmp_path, monkeypatch):
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path}/mlflow.db")
+    yield f"sqlite:///{tmp_path}/mlflow.db"
+    mlflow.set_tracking_uri(None)
+
+
+def test_stage_writes_model_onnx_report_and_logs_to_mlflow(tmp_path, mlflow_store):
+    from stages.common import tracked_run
+
+    cfg = make_cfg(tmp_path)
+    with tracked_run("train", cfg) as tracker:
+        stage.run(cfg, tracker)
+        run_id = tracker.run_id
+    model, ckpt = load_checkpoint(tmp_path / "models" / "controller.pt")
+    assert ckpt["input_hw"] == [32, 32] and ckpt["store_hw"] == [32, 32]
+    assert (tmp_path / "models" / "controller.onnx").exists()
+    report = json.loads((tmp_path / "reports" / "train.json").read_text())
+    assert report["metrics"]["onnx_max_abs_diff"] < 1e-4
+    assert len(report["history"]) == report["metrics"]["epochs_run"] == 3
+    client = mlflow.tracking.MlflowClient(mlflow_store)
+    hist = client.get_metric_history(run_id, "val_loss")
+    assert [h.step for h in hist] == [0, 1, 2]
+    data = client.get_run(run_id).data
+    assert "final.baseline_val_exposure_mae_ev" in data.metrics and "final.improvement_gain_db" in data.metrics
+    assert data.metrics["final.val_loss"] == pytest.approx(report["metrics"]["val_loss"])
+    exp = client.get_run(run_id).info.experiment_id
+    models = mlflow.search_logged_models(experiment_ids=[exp], filter_string=f"source_run_id = '{run_id}'",
+                                         output_format="list")
+    assert [m.name for m in models] == ["model"]
+
+
+def test_bad_config_fails_before_work(tmp_path):
+    cfg = make_cfg(tmp_path, lr=-1.0)
+    with pytest.raises(ConfigError, match="train.lr"):
+        stage.run(cfg, None)
+    assert not (tmp_path / "models").exists()
+
+
+WORKER = textwrap.dedent("""
+    import json, sys, torch, torch.distributed as dist
+    from stages import train as stage
+    class T:
+        def log_params(self, *a, **k): pass
+        def log_metrics(self, *a, **k): pass
+        def log_artifact(self, *a, **k): pass
+    dist.init_process_group("gloo")
+    cfg = json.load(open(sys.argv[1]))
+    result = stage.run(cfg, T())
+    torch.save(result.model.state_dict(), sys.argv[2] + f".rank{dist.get_rank()}")
+    dist.destroy_process_group()
+""")
+
+
+def test_torchrun_two_cpu_processes(tmp_path):
+    cfg = make_cfg(tmp_path, epochs=2)
+    (tmp_path / "cfg.json").write_text(json.dumps(cfg))
+    (tmp_path / "worker.py").write_text(WORKER)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                        str(tmp_path / "worker.py"), str(tmp_path / "cfg.json"), str(tmp_path / "state")],
+                       cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    s0, s1 = (torch.load(tmp_path / f"state.rank{r}") for r in (0, 1))
+    ckpt_model, ckpt = load_checkpoint(tmp_path / "models" / "controller.pt")  # written by rank 0 only
+    assert ckpt["metrics"]["n_processes"] == 2
+    for k in s0:  # DDP keeps the replicas identical (BN buffers broadcast from rank 0)
+        assert torch.equal(s0[k], s1[k]), k
+        assert torch.equal(s0[k], ckpt_model.state_dict()[k]), k
