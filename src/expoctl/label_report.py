@@ -121,6 +121,10 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.0f}%"
 
 
+def _evabs(x) -> str:
+    return _ev(x, signed=False)
+
+
 def _ev(x, signed=True) -> str:
     if x is None:
         return "n/a"
@@ -137,8 +141,8 @@ def findings(stats: dict) -> list[str]:
     share1 = m["match"]["camera_share"]["1"]
     ties = m["match"]["tie_share"]
     if share1 > 0.5:
-        why = (f"Why: camera 1's settings change slowly (median {_ev(stats['camera1_abs_ev_step'].get('median'), 1)} "
-               f"per frame against {_ev(stats['camera2_abs_ev_step'].get('median'), 1)} for camera 2, which jumps to "
+        why = (f"Why: camera 1's settings change slowly (median {_evabs(stats['camera1_abs_ev_step'].get('median'))} "
+               f"per frame against {_evabs(stats['camera2_abs_ev_step'].get('median'))} for camera 2, which jumps to "
                f"another perturbation quadrant every frame), so a camera-1 → camera-1 pair has the least photometric "
                f"change between its images, and a brightness change within a pair costs matches.")
     else:
@@ -153,7 +157,7 @@ def findings(stats: dict) -> list[str]:
                    f"reference clips highlights that carry matchable texture")
         else:
             how = (f"the winning camera-2 images are about as bright as the reference (median {_ev(cam2_med)}; "
-                   f"reference moves {_ev(stats['camera1_abs_ev_step'].get('median'), 0)} per frame), so camera "
+                   f"reference moves {_evabs(stats['camera1_abs_ev_step'].get('median'))} per frame), so camera "
                    f"choice is close to noise between near-equal counts")
         why = f"Why: {how}."
     out.append(
@@ -190,8 +194,8 @@ def findings(stats: dict) -> list[str]:
     out.append(
         f"Consecutive targets are equal in {_pct(m['match']['consecutive_equal_settings'])} of steps for M_match, "
         f"{_pct(f['consecutive_equal_settings'])} for M_feat and {_pct(h['consecutive_equal_settings'])} for "
-        f"M_hybrid; the target moves a mean {_ev(step['match'], 0)}, {_ev(step['feat'], 0)} and "
-        f"{_ev(step['hybrid'], 0)} per step (the paper: M_feat targets are the more variable, M_match the more "
+        f"M_hybrid; the target moves a mean {_evabs(step['match'])}, {_evabs(step['feat'])} and "
+        f"{_evabs(step['hybrid'])} per step (the paper: M_feat targets are the more variable, M_match the more "
         f"stable) — {'consistent' if steadier else 'NOT consistent'}.")
     return out
 
@@ -235,8 +239,8 @@ def render_markdown(stats: dict) -> str:
         lambda s: _dist(s["gain_offset_db_next_reference"], "dB"))
     row("consecutive targets with equal settings", lambda s: _pct(s["consecutive_equal_settings"]))
     row("target change between consecutive steps: mean |ΔEV| (p90)",
-        lambda s: f"{_ev(s['consecutive_abs_ev_change']['mean'], 0)} "
-                  f"({_ev(s['consecutive_abs_ev_change']['p90'], 0)})")
+        lambda s: f"{_evabs(s['consecutive_abs_ev_change']['mean'])} "
+                  f"({_evabs(s['consecutive_abs_ev_change']['p90'])})")
     row("consecutive targets from the same image", lambda s: _pct(s["consecutive_same_image"]))
     row("ties (broken towards earliest frame, camera 1)", lambda s: _pct(s["tie_share"]))
     row("max count zero", lambda s: _pct(s["zero_score_share"]))
@@ -257,8 +261,8 @@ def render_markdown(stats: dict) -> str:
     lines += ["", f"Perturbation available (camera 2 − camera 1, all frames): median {_ev(p.get('median'))}, "
               f"p10 … p90 {_ev(p.get('p10'))} … {_ev(p.get('p90'))}; camera 2 brighter in "
               f"{_pct(p.get('share_brighter'))} of frames. Settings change per frame (median |ΔEV|): camera 1 "
-              f"{_ev(stats['camera1_abs_ev_step'].get('median'), 0)}, camera 2 "
-              f"{_ev(stats['camera2_abs_ev_step'].get('median'), 0)}.", ""]
+              f"{_evabs(stats['camera1_abs_ev_step'].get('median'))}, camera 2 "
+              f"{_evabs(stats['camera2_abs_ev_step'].get('median'))}.", ""]
     return "\n".join(lines)
 
 

@@ -120,7 +120,7 @@ def _where(name: str, rows: pd.DataFrame, what: str, cols=("sequence", "frame_id
     """An InputError naming the first offending row (and how many more there are)."""
     first = rows.iloc[0]
     label = {"frame_id": "frame"}
-    place = ", ".join(f"{label.get(c, c)} {first[c]!r}" if c == "sequence" else f"{label.get(c, c)} {first[c]}"
+    place = ", ".join(f"{label.get(c, c)} '{first[c]}'" if c == "sequence" else f"{label.get(c, c)} {first[c]}"
                       for c in cols)
     more = f" (and {len(rows) - 1} more)" if len(rows) > 1 else ""
     return InputError(f"{name}: {place}: {what}{more}")
@@ -253,7 +253,7 @@ def match_counts(matches: pd.DataFrame, idx: FrameIndex, frontend: str, name: st
         r, i, j = np.argwhere(gap)[0]
         n_more = int(gap.any(axis=(1, 2)).sum()) - 1
         more = f" (and {n_more} more frames)" if n_more else ""
-        raise InputError(f"{name}: sequence {idx.sequence[r]!r}, frame {idx.frame_id[r]}: {frontend} pairing camera "
+        raise InputError(f"{name}: sequence '{idx.sequence[r]}', frame {idx.frame_id[r]}: {frontend} pairing camera "
                          f"{i + 1} → camera {j + 1} (frame {idx.frame_id[r]} → {idx.frame_id[r] + 1}) missing{more}")
     return out
 

@@ -58,7 +58,7 @@ def sequence_splits(frames: pd.DataFrame, name: str = "frames") -> pd.Series:
     per_seq = df.groupby("sequence", sort=True)["split"].unique()
     mixed = per_seq[per_seq.map(len) > 1]
     if len(mixed):
-        raise InputError(f"{name}: sequence {mixed.index[0]!r} appears in several splits "
+        raise InputError(f"{name}: sequence '{mixed.index[0]}' appears in several splits "
                          f"({', '.join(sorted(mixed.iloc[0]))}); splits must be by sequence")
     return per_seq.map(lambda v: str(v[0]))
 
