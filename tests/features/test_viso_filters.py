@@ -4,6 +4,7 @@ import numpy as np
 
 from expoctl.features.viso_filters import (
     BLOB_KERNEL,
+    CORNER_KERNEL,
     blob_corner,
     gradient_bytes,
     half_resolution,
@@ -89,6 +90,7 @@ def test_blob_corner_match_brute_force_correlation():
     f1, f2 = blob_corner(img)
     a = np.array([1, 1, 0, -1, -1])
     corner = np.outer(a, a)
+    assert (CORNER_KERNEL == corner).all()
     for y in range(2, 10):
         for x in range(2, 11):
             patch = img[y - 2 : y + 3, x - 2 : x + 3].astype(np.int64)
@@ -102,3 +104,14 @@ def test_blob_corner_match_brute_force_correlation():
             patch = img[y - 2 : y + 3, x - 2 : x + 3].astype(np.int64)
             assert s_u[y, x] == (patch * np.outer(s, d)).sum()  # kernel[dy][dx] = s[dy]·d[dx]
             assert s_v[y, x] == (patch * np.outer(d, s)).sum()
+
+
+def test_one_pass_gradient_bytes_equal_the_encoding_of_the_sums():
+    rng = np.random.default_rng(4)
+    img = rng.integers(0, 256, (30, 41), dtype=np.uint8)
+    img[10:20, 10:20] = 255  # strong edges
+    du, dv = sobel_du_dv(img)
+    s_u, s_v = sobel_raw(img)
+    inner = (slice(2, -2), slice(2, -2))
+    assert (du[inner] == gradient_bytes(s_u)[inner]).all() and (dv[inner] == gradient_bytes(s_v)[inner]).all()
+    assert (du[:2] == 128).all() and (dv[:, -2:] == 128).all()  # border: "no gradient"

@@ -10,6 +10,7 @@ default) or on the bucketed matches (count B, `bucketing: true`).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from time import perf_counter
 
 import numpy as np
 
@@ -56,35 +57,59 @@ class VisoCounts:
         return asdict(self)
 
 
+class _Laps:
+    """Accumulates wall time per pipeline stage into an optional dict (for benchmarks/viso_speed.py)."""
+
+    def __init__(self, timings: dict[str, float] | None):
+        self.timings = timings
+        self.last = perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = perf_counter()
+        if self.timings is not None:
+            self.timings[stage] = self.timings.get(stage, 0.0) + (now - self.last)
+        self.last = now
+
+
 def _check_grey(grey: np.ndarray) -> None:
     if not isinstance(grey, np.ndarray) or grey.ndim != 2 or grey.dtype != np.uint8:
         desc = f"{grey.dtype} array of shape {grey.shape}" if isinstance(grey, np.ndarray) else type(grey).__name__
         raise InputError(f"viso front end: expected an 8-bit grey image (H×W uint8), got {desc}")
 
 
-def extract_features(grey: np.ndarray, p: VisoParams) -> VisoFeatures:
+def extract_features(grey: np.ndarray, p: VisoParams, timings: dict[str, float] | None = None) -> VisoFeatures:
+    """Detect and describe features. timings, if given, accumulates seconds per stage (filters, nms, descriptors)."""
     _check_grey(grey)
+    laps = _Laps(timings)
     height, width = grey.shape
     scale = 2 if p.half_resolution else 1
     img = half_resolution(grey) if p.half_resolution else grey
     du, dv = sobel_du_dv(img)
     f1, f2 = blob_corner(img)
     du_full, dv_full = (sobel_du_dv(grey) if p.half_resolution else (du, dv)) if p.refinement else (None, None)
+    laps.lap("filters")
     grid = Grid(width, height, p.match_binsize)
     sets = []
     for n in (p.nms_n, p.sparse_nms_n):
         u, v, cls = block_nms(f1, f2, n, MARGIN, p.nms_tau)
+        laps.lap("nms")
         desc = descriptors(du, dv, u, v)
         sets.append(make_feature_set(u * scale, v * scale, cls, desc, grid))
+        laps.lap("descriptors")
     return VisoFeatures(width, height, sets[0], sets[1], du_full, dv_full)
 
 
-def match_matches(prev: VisoFeatures, cur: VisoFeatures, p: VisoParams) -> tuple[np.ndarray, dict[str, int]]:
-    """Final matches (A rows of u_prev, v_prev, u_cur, v_cur) and the intermediate match counts."""
+def match_matches(
+    prev: VisoFeatures, cur: VisoFeatures, p: VisoParams, timings: dict[str, float] | None = None
+) -> tuple[np.ndarray, dict[str, int]]:
+    """Final matches (A rows of u_prev, v_prev, u_cur, v_cur) and the intermediate match counts.
+
+    timings, if given, accumulates seconds per stage (matching, delaunay)."""
     if (prev.width, prev.height) != (cur.width, cur.height):
         raise InputError(
             f"viso front end: image sizes differ ({prev.width}×{prev.height} vs {cur.width}×{cur.height})"
         )
+    laps = _Laps(timings)
     grid = Grid(cur.width, cur.height, p.match_binsize)
     radius = p.search_radius
     counts: dict[str, int] = {}
@@ -92,16 +117,20 @@ def match_matches(prev: VisoFeatures, cur: VisoFeatures, p: VisoParams) -> tuple
     if p.multi_stage:
         sparse = circle_match(prev.sparse, cur.sparse, grid, radius, None)
         counts["n_sparse_circular"] = len(sparse)
+        laps.lap("matching")
         sparse = remove_outliers(sparse, p.outlier_flow_tolerance)
         counts["n_sparse_after_outliers"] = len(sparse)
+        laps.lap("delaunay")
         prior = flow_prior(sparse, grid, radius)
     dense = circle_match(prev.dense, cur.dense, grid, radius, prior)
     counts["n_dense_circular"] = len(dense)
     if p.refinement == 1:
         dense = refine_integer(dense, prev.du_full, prev.dv_full, cur.du_full, cur.dv_full, MARGIN)
     counts["n_dense_after_refinement"] = len(dense)
+    laps.lap("matching")
     dense = remove_outliers(dense, p.outlier_flow_tolerance)
     counts["n_raw_matches"] = len(dense)
+    laps.lap("delaunay")
     return dense, counts
 
 
@@ -140,19 +169,23 @@ class VisoFrontEnd:
     def __init__(self, params: dict | None = None):
         self.params = parse_params(params)
 
-    def extract(self, grey: np.ndarray) -> VisoFeatures:
-        return extract_features(grey, self.params)
+    def extract(self, grey: np.ndarray, timings: dict[str, float] | None = None) -> VisoFeatures:
+        return extract_features(grey, self.params, timings)
 
     def n_features(self, extracted: VisoFeatures) -> int:
         """Dense feature count (libviso2's n_features)."""
         return len(extracted.dense)
 
-    def match(self, prev: VisoFeatures, cur: VisoFeatures, seed: int) -> tuple[int, int]:
-        """(n_matches = A, n_inliers = C, or B when params bucketing is true)."""
+    def match(
+        self, prev: VisoFeatures, cur: VisoFeatures, seed: int, timings: dict[str, float] | None = None
+    ) -> tuple[int, int]:
+        """(n_matches = A, n_inliers = C, or B when params bucketing is true). Deterministic for a given seed."""
         p = self.params
-        matches, _ = match_matches(prev, cur, p)
+        matches, _ = match_matches(prev, cur, p, timings)
+        laps = _Laps(timings)
         if p.bucketing:
             n_inliers = _bucketed_inliers(matches, p, seed)[1]
         else:
             n_inliers = ransac_inlier_count(matches, p.ransac_iters, p.inlier_threshold, seed)
+        laps.lap("ransac")
         return len(matches), n_inliers

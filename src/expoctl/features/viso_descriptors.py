@@ -7,6 +7,7 @@ offset). The 16-byte refinement descriptor is read from the full-resolution grad
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 # (dx, dy) offsets of the 32-byte descriptor, in byte order (each gives a du byte then a dv byte)
 DESCRIPTOR_OFFSETS = np.array(
@@ -22,14 +23,28 @@ REFINE_DU_OFFSETS = np.array(
 REFINE_DV_OFFSETS = np.array([(0, -1), (-1, 0), (1, 0), (0, 1)], np.int32)
 
 
-def descriptors(du: np.ndarray, dv: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(N, 32) uint8 descriptors at integer positions (u, v) of the gradient images du, dv."""
-    uu = u.astype(np.intp)[:, None] + DESCRIPTOR_OFFSETS[None, :, 0]
-    vv = v.astype(np.intp)[:, None] + DESCRIPTOR_OFFSETS[None, :, 1]
+@njit(cache=True)
+def _descriptors(du, dv, u, v, offsets):
     out = np.empty((len(u), 32), np.uint8)
-    out[:, 0::2] = du[vv, uu]
-    out[:, 1::2] = dv[vv, uu]
+    for i in range(len(u)):
+        for k in range(16):
+            x = u[i] + offsets[k, 0]
+            y = v[i] + offsets[k, 1]
+            out[i, 2 * k] = du[y, x]
+            out[i, 2 * k + 1] = dv[y, x]
     return out
+
+
+def descriptors(du: np.ndarray, dv: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 32) uint8 descriptors at integer positions (u, v) of the gradient images du, dv.
+
+    Positions must lie at least 5 px inside the image (the detector's margin guarantees it)."""
+    u = np.asarray(u, np.int64)
+    v = np.asarray(v, np.int64)
+    h, w = du.shape
+    if len(u) and (u.min() < 5 or v.min() < 5 or u.max() >= w - 5 or v.max() >= h - 5):
+        raise ValueError("descriptor positions must lie at least 5 px inside the image")
+    return _descriptors(du, dv, u, v, DESCRIPTOR_OFFSETS)
 
 
 def refinement_descriptor(du: np.ndarray, dv: np.ndarray, u: int, v: int) -> np.ndarray:

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 from expoctl.features.viso_descriptors import REFINE_DU_OFFSETS, REFINE_DV_OFFSETS
+from expoctl.features.viso_sad import sad32
 
 #: A prior range narrower than this (px) is widened symmetrically to it.
 PRIOR_MIN_WIDTH = 20
@@ -20,7 +21,9 @@ PRIOR_MIN_WIDTH = 20
 class FeatureSet:
     """Features of one image at full-resolution coordinates, with the lookup bins of the matcher.
 
-    Bins: features sorted by key (class, u-cell, v-cell) with ties in index order; bin k holds order[start[k]:start[k+1]].
+    Bins: features sorted by key (class, u-cell, v-cell) with ties in index order; bin k holds the features
+    order[start[k]:start[k+1]]. The search reads bin-ordered copies (su, sv, sdesc) so that a bin is contiguous in
+    memory; rank is the inverse of order (the bin-ordered row of feature i).
     """
 
     u: np.ndarray  # int32
@@ -29,6 +32,10 @@ class FeatureSet:
     desc: np.ndarray  # (N, 32) uint8
     order: np.ndarray  # int32
     start: np.ndarray  # int32, 4·n_cells_u·n_cells_v + 1
+    rank: np.ndarray  # int32
+    su: np.ndarray  # int32, u[order]
+    sv: np.ndarray  # int32, v[order]
+    sdesc: np.ndarray  # (N, 32) uint8, desc[order], C-contiguous
 
     def __len__(self) -> int:
         return len(self.u)
@@ -63,7 +70,15 @@ def make_feature_set(u: np.ndarray, v: np.ndarray, cls: np.ndarray, desc: np.nda
     counts = np.bincount(key, minlength=4 * grid.n_u * grid.n_v)
     start = np.zeros(len(counts) + 1, np.int32)
     np.cumsum(counts, out=start[1:])
-    return FeatureSet(u.astype(np.int32), v.astype(np.int32), cls.astype(np.int8), np.ascontiguousarray(desc), order, start)
+    desc = np.ascontiguousarray(desc, np.uint8)  # sad32 reads rows of 32 bytes by address
+    if desc.shape != (len(u), 32):
+        raise ValueError(f"descriptors must have shape ({len(u)}, 32), got {desc.shape}")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order), dtype=np.int32)
+    u = u.astype(np.int32)
+    v = v.astype(np.int32)
+    return FeatureSet(u, v, cls.astype(np.int8), desc, order, start, rank, u[order], v[order],
+                      np.ascontiguousarray(desc[order]))  # fmt: skip
 
 
 @njit(cache=True)
@@ -77,10 +92,11 @@ def _cell(x, binsize, n_cells):
 
 
 @njit(cache=True)
-def _search(qdesc, c, umin, umax, vmin, vmax, u, v, desc, order, start, n_u, n_v, binsize):
+def _search(qdesc, qi, c, umin, umax, vmin, vmax, su, sv, sdesc, order, start, n_u, n_v, binsize):
     """Index of the lowest-SAD feature of class c inside the inclusive window; 0 when there is none (libviso2 quirk).
 
-    Candidates are visited in (u-cell, v-cell, index) order and the first of equal cost wins.
+    qdesc[qi] is the query descriptor. Candidates are visited in (u-cell, v-cell, index) order (the bin order of
+    su, sv, sdesc) and the first of equal cost wins.
     """
     cu0 = _cell(umin, binsize, n_u)
     cu1 = _cell(umax, binsize, n_u)
@@ -92,20 +108,18 @@ def _search(qdesc, c, umin, umax, vmin, vmax, u, v, desc, order, start, n_u, n_v
         for cv in range(cv0, cv1 + 1):
             k = (c * n_u + cu) * n_v + cv
             for p in range(start[k], start[k + 1]):
-                j = order[p]
-                if u[j] < umin or u[j] > umax or v[j] < vmin or v[j] > vmax:
+                if su[p] < umin or su[p] > umax or sv[p] < vmin or sv[p] > vmax:
                     continue
-                cost = 0
-                for b in range(32):
-                    cost += abs(np.int32(qdesc[b]) - np.int32(desc[j, b]))
+                cost = sad32(qdesc, qi, sdesc, p)
                 if cost < best_cost:
                     best_cost = cost
-                    best = j
-    return best if best >= 0 else 0
+                    best = p
+    return order[best] if best >= 0 else 0
 
 
 @njit(cache=True)
-def _circle_match(pu, pv, pc, pdesc, porder, pstart, cu_, cv_, cc, cdesc, corder, cstart,
+def _circle_match(pu, pv, pc, prank, psu, psv, psdesc, porder, pstart,
+                  cu_, cv_, cc, crank, csu, csv, csdesc, corder, cstart,
                   n_u, n_v, binsize, width, height, radius, use_prior, prior):  # fmt: skip
     n_cur = len(cu_)
     out = np.empty((n_cur, 4), np.int32)
@@ -120,12 +134,12 @@ def _circle_match(pu, pv, pc, pdesc, porder, pstart, cu_, cv_, cc, cdesc, corder
             # both stages use the prior of the current feature's cell
             r = prior[_cell(ui, binsize, n_u) * n_v + _cell(vi, binsize, n_v)]
             fu0, fu1, fv0, fv1, bu0, bu1, bv0, bv1 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7]
-        j = _search(cdesc[i], cc[i], ui + fu0, ui + fu1, vi + fv0, vi + fv1, pu, pv, pdesc, porder, pstart,
-                    n_u, n_v, binsize)  # fmt: skip
+        j = _search(csdesc, crank[i], cc[i], ui + fu0, ui + fu1, vi + fv0, vi + fv1, psu, psv, psdesc, porder,
+                    pstart, n_u, n_v, binsize)  # fmt: skip
         uj = pu[j]
         vj = pv[j]
-        k = _search(pdesc[j], pc[j], uj + bu0, uj + bu1, vj + bv0, vj + bv1, cu_, cv_, cdesc, corder, cstart,
-                    n_u, n_v, binsize)  # fmt: skip
+        k = _search(psdesc, prank[j], pc[j], uj + bu0, uj + bu1, vj + bv0, vj + bv1, csu, csv, csdesc, corder,
+                    cstart, n_u, n_v, binsize)  # fmt: skip
         if k == i and not occupied[vi, ui]:
             occupied[vi, ui] = True
             out[cnt, 0] = uj
@@ -147,8 +161,8 @@ def circle_match(prev: FeatureSet, cur: FeatureSet, grid: Grid, radius: float, p
     if prior is None:
         prior = np.zeros((1, 8), np.float64)
     return _circle_match(
-        prev.u, prev.v, prev.cls, prev.desc, prev.order, prev.start,
-        cur.u, cur.v, cur.cls, cur.desc, cur.order, cur.start,
+        prev.u, prev.v, prev.cls, prev.rank, prev.su, prev.sv, prev.sdesc, prev.order, prev.start,
+        cur.u, cur.v, cur.cls, cur.rank, cur.su, cur.sv, cur.sdesc, cur.order, cur.start,
         grid.n_u, grid.n_v, float(grid.binsize), grid.width, grid.height, float(radius), use_prior,
         np.ascontiguousarray(prior, np.float64),
     )  # fmt: skip
