@@ -6,17 +6,18 @@ import pytest
 import yaml
 
 from expoctl.errors import ConfigError
+from expoctl.rig.closed_loop import RigConfig
 from expoctl.rig.collect import CollectConfig, collect, plan_sequences
 from expoctl.rig.raw import validate_raw_dir
 from expoctl.rig.protocol import perturb, PerturbationConfig
 from expoctl.controllers.base import Settings
 
-# a cheap city: the train city with small texture tiles (atlas builds in ~1 s instead of ~10 s)
-SMALL_TRAIN = {"base": "train", "textures": {"tile_px": 256}}
-
 TINY = {
     "seed": 3,
-    "rig": {"baseline_m": 0.0392, "fps": 15.0, "width": 64, "height": 48, "hfov_deg": 70.0},
+    "rig": {"baseline_m": 0.0392, "fps": 15.0},
+    # a cheap city: the train city with small texture tiles (atlas in ~1 s instead of ~10 s), from a city_dir file
+    "world": {"cities": {"train": "small", "validation": "small", "test": "small"}, "city_dir": None,
+              "render": {"width": 64, "height": 48, "hfov_deg": 70.0}},
     "collect": {
         "reference_controller": "agae",
         "initial_gain_db": 0.0,
@@ -25,8 +26,8 @@ TINY = {
         "sensor_randomisation": 0.15,
         "n_jobs": 1,
         "splits": {
-            "train": {"city": SMALL_TRAIN, "first_traversal": 0, "n_sequences": 1, "frames": 6},
-            "validation": {"city": SMALL_TRAIN, "first_traversal": 5, "n_sequences": 1, "frames": 5},
+            "train": {"first_traversal": 0, "n_sequences": 1, "frames": 6},
+            "validation": {"first_traversal": 5, "n_sequences": 1, "frames": 5},
             "test": None,
         },
     },
@@ -35,19 +36,32 @@ TINY = {
 
 
 @pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
+def city_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cities")
+    (d / "small.yaml").write_text(yaml.safe_dump({"base": "train", "name": "small", "textures": {"tile_px": 256}}))
+    return str(d)
+
+
+def tiny(city_dir):
+    cfg = copy.deepcopy(TINY)
+    cfg["world"]["city_dir"] = city_dir
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory, city_dir):
     out = tmp_path_factory.mktemp("raw") / "raw"
-    summaries = collect(copy.deepcopy(TINY), out, progress=False)
+    summaries = collect(tiny(city_dir), out, progress=False)
     return out, summaries
 
 
 def test_tiny_collect_is_valid_raw_data(tiny_run):
     out, summaries = tiny_run
     assert validate_raw_dir(out) == []
-    assert [s["sequence"] for s in summaries] == ["train-train-t000", "validation-train-t005"]
-    seq = out / "train" / "train-train-t000"
+    assert [s["sequence"] for s in summaries] == ["train-small-t000", "validation-small-t005"]
+    seq = out / "train" / "train-small-t000"
     meta = yaml.safe_load((seq / "sequence.yaml").read_text())
-    assert meta["source"] == "sim" and meta["world"] == "train" and meta["split"] == "train"
+    assert meta["source"] == "sim" and meta["world"] == "small" and meta["split"] == "train"
     assert meta["rig"]["resolution"] == [64, 48] and meta["rig"]["baseline_m"] == 0.0392
     assert meta["reference_controller"]["name"] == "agae"
     assert meta["reference_controller"]["params"] == {"damping": 0.2}
@@ -68,13 +82,13 @@ def test_tiny_collect_is_valid_raw_data(tiny_run):
     assert (cam1.timestamp_ns.to_numpy() == cam2.timestamp_ns.to_numpy()).all()  # synchronised
 
 
-def test_collect_is_deterministic_per_seed(tiny_run, tmp_path):
+def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
     out, _ = tiny_run
-    cfg = copy.deepcopy(TINY)
+    cfg = tiny(city_dir)
     cfg["collect"]["splits"]["validation"] = None
     again = tmp_path / "again"
     collect(cfg, again, progress=False)
-    a, b = out / "train" / "train-train-t000", again / "train" / "train-train-t000"
+    a, b = out / "train" / "train-small-t000", again / "train" / "train-small-t000"
     assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
     assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
     for p in sorted((a / "cam2").iterdir()):
@@ -82,23 +96,23 @@ def test_collect_is_deterministic_per_seed(tiny_run, tmp_path):
     cfg["seed"] = 4
     other = tmp_path / "other"
     collect(cfg, other, progress=False)
-    assert (other / "train" / "train-train-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
+    assert (other / "train" / "train-small-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
 
 
-def test_failure_leaves_previous_output_untouched(tiny_run, tmp_path):
+def test_failure_leaves_previous_output_untouched(tmp_path, city_dir):
     out = tmp_path / "raw"
     (out / "train" / "keep").mkdir(parents=True)
     (out / "train" / "keep" / "marker").write_text("x")
-    cfg = copy.deepcopy(TINY)
-    cfg["controllers"]["agae"] = {"damping": 7.0}  # rejected by the controller inside the worker
-    with pytest.raises(ConfigError):
+    cfg = tiny(city_dir)
+    cfg["world"]["render"]["blur"] = "smeared"  # rejected by the renderer inside the worker, mid-run
+    with pytest.raises(ConfigError, match="world.render.blur"):
         collect(cfg, out, progress=False)
     assert (out / "train" / "keep" / "marker").read_text() == "x"
     assert sorted(p.name for p in out.iterdir()) == ["train"]
 
 
-def _with(path, value):
-    cfg = copy.deepcopy(TINY)
+def _with(path, value, city_dir):
+    cfg = tiny(city_dir)
     node = cfg
     for part in path[:-1]:
         node = node[part]
@@ -120,25 +134,28 @@ def _with(path, value):
         (("collect", "splits", "train", "frames"), 1, "collect.splits.train.frames"),
         (("collect", "splits", "train", "n_sequence"), 1, "collect.splits.train.n_sequence"),
         (("collect", "splits", "holdout"), {}, "collect.splits.holdout"),
-        (("collect", "splits", "train", "city"), "atlantis", "collect.splits.train.city"),
-        (("rig", "width"), 0, "rig.width"),
+        (("world", "cities", "train"), "atlantis", "world.cities.train"),
+        (("world", "cities", "validation"), KeyError, "world.cities.validation"),
+        (("world", "render", "width"), 0, "world.render.width"),
+        (("controllers", "agae", "damping"), 7.0, "controllers.agae.damping"),
+        (("rig", "width"), 320, "rig.width"),
         (("rig", "fps"), "fast", "rig.fps"),
         (("rig", "perturbation"), {"max_fraction": 2.0}, "rig.perturbation.max_fraction"),
         (("seed",), -1, "seed"),
     ],
 )
-def test_bad_config_names_the_key(path, value, key, tmp_path):
+def test_bad_config_names_the_key(path, value, key, tmp_path, city_dir):
     with pytest.raises(ConfigError) as e:
-        collect(_with(path, value), tmp_path / "raw", progress=False)
+        collect(_with(path, value, city_dir), tmp_path / "raw", progress=False)
     assert e.value.key == key
     assert not (tmp_path / "raw").exists()
 
 
-def test_plan_names_and_seeds():
-    cfg = copy.deepcopy(TINY)
+def test_plan_names_and_seeds(city_dir):
+    cfg = tiny(city_dir)
     cfg["collect"]["splits"]["train"]["n_sequences"] = 3
     jobs = plan_sequences(cfg)
-    assert [j.name for j in jobs] == ["train-train-t000", "train-train-t001", "train-train-t002", "validation-train-t005"]
+    assert [j.name for j in jobs] == ["train-small-t000", "train-small-t001", "train-small-t002", "validation-small-t005"]
     assert len({j.seed for j in jobs}) == 4
     assert [j.traversal_frames for j in jobs] == [8, 8, 8, 7]  # warm-up + recorded
     assert plan_sequences(cfg) == jobs
@@ -151,7 +168,5 @@ def test_config_file_parses():
     d = yaml.safe_load((root / "conf" / "collect" / "default.yaml").read_text())
     cfg = CollectConfig.from_dict(d)
     assert cfg.splits["train"].n_sequences >= 8 and cfg.splits["train"].frames >= 300
-    from expoctl.rig.closed_loop import RigConfig
-
     rig = RigConfig.from_dict(yaml.safe_load((root / "conf" / "rig" / "default.yaml").read_text()))
     assert rig.baseline_m == 0.0392 and rig.fps == 15.0

@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Iterator, Protocol, Sequence
+from typing import Any, Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
 from expoctl.controllers.base import Controller, Settings
+from expoctl.errors import ConfigError
 from expoctl.rig.protocol import PerturbationConfig, perturb
 
 #: stream id mixed into per-frame sensor seeds (the perturbation uses a different one)
@@ -156,71 +157,85 @@ class FunctionScene:
         return self._t0_ns + int(round(frame_index * self._period_ns))
 
 
-# --- the simulated rig: geometry/config, world scene, sensors --------------------------------------------------------
+# --- the simulated rig: config, world scene, sensors ---------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class RigConfig:
-    """The dual-camera rig (config group `rig`): geometry, rate, render size and camera 2's perturbation."""
+    """The dual-camera rig (config group `rig`): geometry, frame rate and camera 2's perturbation.
+    Image size and field of view are the world renderer's (`world.render`), shared by every stage."""
 
     baseline_m: float = 0.0392
     fps: float = 15.0
-    width: int = 320
-    height: int = 240
-    hfov_deg: float = 70.0
     perturbation: PerturbationConfig = PerturbationConfig()
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "rig") -> "RigConfig":
-        from expoctl.errors import ConfigError
+        d = _mapping(d, key)
+        _known(d, {"baseline_m", "fps", "perturbation"}, key)
+        kw: dict = {k: _positive(d[k], f"{key}.{k}") for k in ("baseline_m", "fps") if k in d}
+        kw["perturbation"] = PerturbationConfig.from_dict(d.get("perturbation"), f"{key}.perturbation")
+        return cls(**kw)
 
-        if d is None:
-            d = {}
-        if not isinstance(d, dict):
-            raise ConfigError(key, f"must be a mapping, got {d!r}")
-        known = {"baseline_m", "fps", "width", "height", "hfov_deg", "perturbation"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """What the renderer needs (config `world.render`): image size, field of view, and options passed through to
+    `expoctl.world.Renderer.from_config` (glare_fraction, mip_bias, tmax_m, blur, max_subframes; it validates them)."""
+
+    width: int = 640
+    height: int = 480
+    hfov_deg: float = 70.0
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def from_world(cls, world: dict | None, key: str = "world.render") -> "RenderConfig":
+        d = _mapping((world or {}).get("render"), key)
         kw: dict = {}
-        for k in ("baseline_m", "fps", "hfov_deg"):
-            if k in d:
-                v = d[k]
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                    raise ConfigError(f"{key}.{k}", f"must be a positive number, got {v!r}")
-                kw[k] = float(v)
         for k in ("width", "height"):
             if k in d:
                 v = d[k]
                 if isinstance(v, bool) or not isinstance(v, int) or not 16 <= v <= 8192:
                     raise ConfigError(f"{key}.{k}", f"must be an integer number of pixels in [16, 8192], got {v!r}")
                 kw[k] = v
-        if kw.get("hfov_deg", 70.0) >= 170.0:
-            raise ConfigError(f"{key}.hfov_deg", f"a pinhole camera needs a field of view below 170°, got {kw['hfov_deg']}")
-        kw["perturbation"] = PerturbationConfig.from_dict(d.get("perturbation"), f"{key}.perturbation")
-        return cls(**kw)
+        if "hfov_deg" in d:
+            kw["hfov_deg"] = _positive(d["hfov_deg"], f"{key}.hfov_deg")
+            if kw["hfov_deg"] >= 170.0:
+                raise ConfigError(f"{key}.hfov_deg", f"a pinhole camera needs less than 170°, got {kw['hfov_deg']}")
+        opts = tuple(sorted((k, v) for k, v in d.items() if k not in ("width", "height", "hfov_deg")))
+        return cls(options=opts, **kw)
 
-    def metadata(self) -> dict:
-        """The `rig` block of sequence.yaml: baseline_m, fps, resolution [w, h], intrinsics {fx, fy, cx, cy}."""
-        f = 0.5 * self.width / math.tan(math.radians(self.hfov_deg) / 2.0)
-        return {
-            "baseline_m": self.baseline_m,
-            "fps": self.fps,
-            "resolution": [self.width, self.height],
-            "intrinsics": {"fx": f, "fy": f, "cx": (self.width - 1) / 2.0, "cy": (self.height - 1) / 2.0},
-            "hfov_deg": self.hfov_deg,
-        }
+    def with_size(self, width: int | None, height: int | None) -> "RenderConfig":
+        return RenderConfig(width or self.width, height or self.height, self.hfov_deg, self.options)
+
+    def make_renderer(self, city):
+        from expoctl.world import Renderer
+
+        cfg = dict(self.options, width=self.width, height=self.height, hfov_deg=self.hfov_deg)
+        return Renderer.from_config(city, cfg)  # validates the options (ConfigError world.render.<key>)
+
+
+def rig_metadata(rig: RigConfig, render: RenderConfig) -> dict:
+    """The `rig` block of sequence.yaml: baseline_m, fps, resolution [w, h], intrinsics {fx, fy, cx, cy}, hfov_deg."""
+    from expoctl.world import intrinsics
+
+    k = np.asarray(intrinsics(render.width, render.height, render.hfov_deg), dtype=np.float64)
+    return {
+        "baseline_m": rig.baseline_m,
+        "fps": rig.fps,
+        "resolution": [render.width, render.height],
+        "intrinsics": {"fx": float(k[0, 0]), "fy": float(k[1, 1]), "cx": float(k[0, 2]), "cy": float(k[1, 2])},
+        "hfov_deg": render.hfov_deg,
+    }
 
 
 class RouteScene:
     """A `Scene` of the simulated world: a city's trajectory rendered for camera 1 (at the rig origin) and camera 2
-    (`baseline_m` to its right), with motion blur over each camera's own exposure."""
+    (`baseline_m` to its right, along the camera x axis), with motion blur over each camera's own exposure."""
 
-    def __init__(self, city, trajectory, rig: RigConfig):
-        from expoctl.world import Renderer
-
+    def __init__(self, city, trajectory, rig: RigConfig, render: RenderConfig):
         self.trajectory = trajectory
-        self.renderer = Renderer(city, rig.width, rig.height, rig.hfov_deg)
+        self.renderer = render.make_renderer(city)
         self._offset_m = {1: 0.0, 2: rig.baseline_m}
 
     def luminance(self, frame_index: int, exposure_us: float, camera: int) -> np.ndarray:
@@ -230,15 +245,15 @@ class RouteScene:
         return int(self.trajectory.timestamps_ns[frame_index])
 
 
-def make_sensors(sensor_cfg: dict | None, rig: RigConfig, n_cameras: int, randomisation: float, seed: int):
-    """`n_cameras` identical sensors (one randomised parameter set, drawn from `seed`; each camera its own
-    fixed-pattern noise) and the parameter set as a plain dict for sequence.yaml."""
+def make_sensors(sensor_cfg: dict | None, render: RenderConfig, n_cameras: int, randomisation: float, seed: int):
+    """`n_cameras` identical sensors — one parameter set, randomised by ±`randomisation` from `seed` (the rig's two
+    cameras are the same model) but each camera its own fixed-pattern noise — and the set as a dict for sequence.yaml."""
     from expoctl.camera.sensor import Sensor, SensorConfig
 
     base = SensorConfig.from_dict(sensor_cfg or {})
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), _SENSOR_STREAM, 0xC0F]))
     config = base.randomised(rng, randomisation) if randomisation > 0 else base
-    sensors = [Sensor(config, rig.height, rig.width, seed=_sensor_unit_seed(seed, c)) for c in range(1, n_cameras + 1)]
+    sensors = [Sensor(config, render.height, render.width, seed=_sensor_unit_seed(seed, c)) for c in range(1, n_cameras + 1)]
     return sensors, _config_dict(config)
 
 
@@ -262,3 +277,23 @@ def _config_dict(config) -> dict:
     import dataclasses
 
     return dataclasses.asdict(config)
+
+
+def _mapping(d, key: str) -> dict:
+    if d is None:
+        return {}
+    if not isinstance(d, dict):
+        raise ConfigError(key, f"must be a mapping, got {d!r}")
+    return d
+
+
+def _known(d: dict, known: set[str], key: str) -> None:
+    for k in d:
+        if k not in known:
+            raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
+
+
+def _positive(v, key: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise ConfigError(key, f"must be a positive number, got {v!r}")
+    return float(v)

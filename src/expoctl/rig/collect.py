@@ -3,7 +3,7 @@
 Camera 1 runs the reference controller (AG+AE in iteration 1, the learned network in iteration 2); camera 2 gets
 camera 1's settings perturbed through the paper's quadrant cycle (`expoctl.rig.protocol`). One sequence per job:
 
-- every split: `n_sequences` traversals of its city (indices first_traversal, first_traversal + 1, …), each with
+- every split: `n_sequences` traversals of its city (`world.cities.<split>`; indices first_traversal, +1, …), each with
   its own speed, sun and sky drawn by the world. With `frames: N` a traversal is an N-frame window that the world
   places around a tunnel transition (portal chosen by index, position random within the middle 60 %), so training
   data is rich in the portals that matter; with `frames: null` it is the whole closed route (validation / test).
@@ -13,7 +13,7 @@ Output: `<out_dir>/<split>/<sequence>/` in the DESIGN raw format, written throug
 sequence). The whole `out_dir` is also built beside the target and swapped in only when every sequence succeeded,
 so a failed or interrupted run leaves the previous data untouched and no stale sequences survive a config change.
 
-Config used (whole resolved config): `collect`, `rig`, `sensor`, `world` (through `expoctl.world`), `seed`,
+Config used (whole resolved config): `collect`, `rig`, `sensor`, `world` (cities, city_dir, render), `seed`,
 `controllers.<reference_controller>`.
 """
 
@@ -33,7 +33,15 @@ import numpy as np
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
-from expoctl.rig.closed_loop import RigConfig, RouteScene, clip_sections, make_sensors, run_closed_loop
+from expoctl.rig.closed_loop import (
+    RenderConfig,
+    RigConfig,
+    RouteScene,
+    clip_sections,
+    make_sensors,
+    rig_metadata,
+    run_closed_loop,
+)
 from expoctl.rig.raw import SequenceWriter
 
 SPLITS = ("train", "validation", "test")
@@ -44,7 +52,6 @@ class SplitConfig:
     """Which sequences one split gets (config `collect.splits.<name>`)."""
 
     name: str
-    city: str | dict  # a city name, or a world city config dict (e.g. {base: train, textures: {tile_px: 256}})
     first_traversal: int = 0
     n_sequences: int = 0
     frames: int | None = None  # recorded frames per sequence; None: the whole route (minus warm-up)
@@ -96,7 +103,8 @@ class SequenceJob:
 
     split: str
     name: str
-    city: str | dict
+    city: str | dict  # world.cities.<split>: a city name or a world city config mapping
+    city_dir: str | None  # world.city_dir, absolute
     city_name: str
     traversal: int
     traversal_frames: int | None  # what the world is asked for (warm-up + recorded); None: whole route
@@ -112,22 +120,37 @@ def derive_seed(*parts: int | str) -> int:
     return (hi >> 1) << 32 | lo
 
 
-def plan_sequences(cfg: dict[str, Any]) -> list[SequenceJob]:
-    """The sequences `collect` will write, in order (no rendering)."""
+def plan_sequences(cfg: dict[str, Any], project_root: str | os.PathLike = ".") -> list[SequenceJob]:
+    """The sequences `collect` will write, in order (no rendering). Relative `world.city_dir` is under `project_root`."""
     ccfg = CollectConfig.from_dict(cfg.get("collect"))
     base_seed = _base_seed(cfg)
+    world = cfg.get("world") or {}
+    if not isinstance(world, dict):
+        raise ConfigError("world", f"must be a mapping, got {world!r}")
+    city_dir = world.get("city_dir")
+    if city_dir is not None:
+        if not isinstance(city_dir, str):
+            raise ConfigError("world.city_dir", f"must be a directory path or null, got {city_dir!r}")
+        city_dir = str((Path(project_root) / city_dir).resolve())
+    cities = world.get("cities") or {}
+    if not isinstance(cities, dict):
+        raise ConfigError("world.cities", f"must map split → city, got {cities!r}")
     jobs: list[SequenceJob] = []
     for split in SPLITS:
         scfg = ccfg.splits[split]
         if scfg.n_sequences == 0:
             continue
-        city_name = _city_name(scfg.city, f"collect.splits.{split}.city")
+        if split not in cities:
+            raise ConfigError(f"world.cities.{split}", f"missing: collect.splits.{split} asks for {scfg.n_sequences} sequences")
+        city = cities[split]
+        city_name = _city_name(city, city_dir, f"world.cities.{split}")
         for k in range(scfg.n_sequences):
             index = scfg.first_traversal + k
             jobs.append(SequenceJob(
                 split=split,
                 name=f"{split}-{city_name}-t{index:03d}",
-                city=scfg.city,
+                city=city,
+                city_dir=city_dir,
                 city_name=city_name,
                 traversal=index,
                 traversal_frames=None if scfg.frames is None else ccfg.warmup_frames + scfg.frames,
@@ -138,7 +161,8 @@ def plan_sequences(cfg: dict[str, Any]) -> list[SequenceJob]:
     return jobs
 
 
-def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool = True) -> list[dict[str, Any]]:
+def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool = True,
+            project_root: str | os.PathLike = ".") -> list[dict[str, Any]]:
     """Render every planned sequence into `out_dir/<split>/<sequence>/`; return one summary dict per sequence."""
     from expoctl.controllers.registry import make_controller
     from expoctl.io import atomic_dir
@@ -146,8 +170,9 @@ def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool = Tr
     # validate everything before any work: config groups, the reference controller's params, city names
     ccfg = CollectConfig.from_dict(cfg.get("collect"))
     RigConfig.from_dict(cfg.get("rig"))
+    RenderConfig.from_world(cfg.get("world"))
     make_controller(ccfg.reference_controller, _reference_params(cfg, ccfg))
-    jobs = plan_sequences(cfg)
+    jobs = plan_sequences(cfg, project_root)
     out_dir = Path(out_dir)
     summaries: list[dict[str, Any]] = []
     with atomic_dir(out_dir) as tmp_root:
@@ -163,10 +188,11 @@ def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathL
 
     ccfg = CollectConfig.from_dict(cfg.get("collect"))
     rig = RigConfig.from_dict(cfg.get("rig"))
-    city = _load_city_cached(job.city)
+    render = RenderConfig.from_world(cfg.get("world"))
+    city = _load_city_cached(job.city, job.city_dir)
     traj = city.traversal(job.traversal, job.traversal_frames, rig.fps, job.traversal_seed)
-    scene = RouteScene(city, traj, rig)
-    sensors, sensor_log = make_sensors(cfg.get("sensor"), rig, 2, ccfg.sensor_randomisation, job.seed)
+    scene = RouteScene(city, traj, rig, render)
+    sensors, sensor_log = make_sensors(cfg.get("sensor"), render, 2, ccfg.sensor_randomisation, job.seed)
     controller = make_controller(ccfg.reference_controller, _reference_params(cfg, ccfg))
     n_total = len(traj.timestamps_ns)
     first = job.warmup_frames
@@ -176,7 +202,7 @@ def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathL
     frames = range(first, n_total)
     meta = {
         "source": "sim",
-        "rig": rig.metadata(),
+        "rig": rig_metadata(rig, render),
         "world": job.city_name,
         "route": f"{job.city_name}/traversal-{job.traversal:03d}",
         "split": job.split,
@@ -217,28 +243,26 @@ def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathL
 
 def _split_from_dict(name: str, d: Any, key: str) -> SplitConfig:
     if d is None:  # a split left out collects nothing
-        return SplitConfig(name=name, city="", n_sequences=0)
+        return SplitConfig(name=name, n_sequences=0)
     d = _mapping(d, key)
-    _no_unknown(d, {"city", "first_traversal", "n_sequences", "frames"}, key)
-    _require_keys(d, {"city", "n_sequences", "frames"}, key)
-    city = d["city"]
-    if not (isinstance(city, str) and city) and not isinstance(city, dict):
-        raise ConfigError(f"{key}.city", f"must be a city name or a city config mapping, got {city!r}")
+    _no_unknown(d, {"first_traversal", "n_sequences", "frames"}, key)
+    _require_keys(d, {"n_sequences", "frames"}, key)
     return SplitConfig(
         name=name,
-        city=city,
         first_traversal=_int(d, "first_traversal", key, 0) if "first_traversal" in d else 0,
         n_sequences=_int(d, "n_sequences", key, 0),
         frames=None if d["frames"] is None else _int(d, "frames", key, 2),
     )
 
 
-def _city_name(spec: str | dict, key: str) -> str:
-    """The name of a city spec (validates it: an unknown name or bad key raises ConfigError under `key`)."""
+def _city_name(spec: Any, city_dir: str | None, key: str) -> str:
+    """The name of a city (validates it: an unknown name or bad key raises ConfigError under `key`)."""
     from expoctl.world.cities import city_config
 
+    if not (isinstance(spec, str) and spec) and not isinstance(spec, dict):
+        raise ConfigError(key, f"must be a city name or a city config mapping, got {spec!r}")
     try:
-        return str(city_config(spec)["name"])
+        return str(city_config(spec, city_dir)["name"])
     except ConfigError as exc:
         sub = exc.key[len("world.city"):] if exc.key.startswith("world.city") else ""
         raise ConfigError(key + sub, exc.problem) from None
@@ -247,15 +271,15 @@ def _city_name(spec: str | dict, key: str) -> str:
 _CITY_CACHE: dict[str, Any] = {}
 
 
-def _load_city_cached(spec: str | dict):
+def _load_city_cached(spec: str | dict, city_dir: str | None):
     """One City per spec per process: building a city's texture atlas takes seconds, sequences share it."""
     import json
 
     from expoctl.world import load_city
 
-    key = json.dumps(spec, sort_keys=True)
+    key = json.dumps([spec, city_dir], sort_keys=True)
     if key not in _CITY_CACHE:
-        _CITY_CACHE[key] = load_city(spec)
+        _CITY_CACHE[key] = load_city(spec, city_dir)
     return _CITY_CACHE[key]
 
 

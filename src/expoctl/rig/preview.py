@@ -37,9 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=int, default=0, help="first frame shown; earlier frames warm the controller up")
     parser.add_argument("--controller", default="agae", help="controller name (expoctl.controllers.registry)")
     parser.add_argument("--config", type=Path, default=None,
-                        help="resolved config (configs/resolved.yaml): sensor, rig and controllers.<name> come from it")
-    parser.add_argument("--width", type=int, default=None, help="render width in pixels (default: rig config, 320)")
-    parser.add_argument("--height", type=int, default=None, help="render height in pixels (default: rig config, 240)")
+                        help="resolved config (configs/resolved.yaml): sensor, rig, world (render, city_dir) and "
+                             "controllers.<name> come from it")
+    parser.add_argument("--width", type=int, default=None, help="render width in pixels (default: world.render, else 320)")
+    parser.add_argument("--height", type=int, default=None, help="render height in pixels (default: world.render, else 240)")
     parser.add_argument("--seed", type=int, default=0, help="seed for trajectory and sensor noise")
     parser.add_argument("--initial-gain-db", type=float, default=0.0)
     parser.add_argument("--initial-exposure-us", type=float, default=5000.0)
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from expoctl.controllers.registry import make_controller
-    from expoctl.rig.closed_loop import RigConfig, RouteScene, make_sensors, run_closed_loop
+    from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop
     from expoctl.world import load_city
 
     cfg: dict[str, Any] = {}
@@ -66,32 +67,37 @@ def run(args: argparse.Namespace) -> int:
         cfg = yaml.safe_load(args.config.read_text()) or {}
         if not isinstance(cfg, dict):
             raise InputError(f"{args.config}: not a YAML mapping")
-    rig_d = dict(cfg.get("rig") or {})
-    for key in ("width", "height"):
-        if getattr(args, key) is not None:
-            rig_d[key] = getattr(args, key)
-    rig = RigConfig.from_dict(rig_d)
+    rig = RigConfig.from_dict(cfg.get("rig"))
+    world = cfg.get("world") or {}
+    render = RenderConfig.from_world(world)
+    if "render" not in world:  # no config: a quick look at 320×240
+        render = render.with_size(320, 240)
+    render = render.with_size(args.width, args.height)
+    if render.width < 16 or render.height < 16:
+        raise InputError(f"--width/--height must be at least 16 pixels, got {render.width}x{render.height}")
     for name in ("columns", "rows", "thumb_width"):
         if getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.start < 0:
         raise InputError(f"--start must be >= 0, got {args.start}")
 
-    city = load_city(_city_spec(args.city))
+    city_dir = world.get("city_dir")
+    city = load_city(_city_spec(args.city), city_dir)
     n_total = None if args.frames is None else args.start + args.frames
     traj = city.traversal(args.traversal, n_total, rig.fps, args.seed)
     n_total = len(traj.timestamps_ns)
     if args.start >= n_total:
         raise InputError(f"--start {args.start} is past the route's last frame ({n_total - 1})")
     controller = make_controller(args.controller, (cfg.get("controllers") or {}).get(args.controller))
-    sensors, _ = make_sensors(cfg.get("sensor"), rig, 1, 0.0, args.seed)
+    sensors, _ = make_sensors(cfg.get("sensor"), render, 1, 0.0, args.seed)
     kinds = _frame_kinds(traj.sections, n_total)
-    loop = run_closed_loop(RouteScene(city, traj, rig), sensors, controller,
+    loop = run_closed_loop(RouteScene(city, traj, rig, render), sensors, controller,
                            Settings(args.initial_gain_db, args.initial_exposure_us), range(0, n_total), args.seed)
     frames = [PreviewFrame(f.frame_index, f.camera(1).settings, f.camera(1).image, kinds[f.frame_index])
               for f in loop if f.frame_index >= args.start]
 
-    title = f"{args.city} traversal {args.traversal}, controller {controller.name}, {rig.width}x{rig.height} @ {rig.fps:g} Hz"
+    title = (f"{city.name} traversal {args.traversal}, controller {controller.name}, {render.width}x{render.height} "
+             f"@ {rig.fps:g} Hz")
     sheet = contact_sheet(frames, _select(frames, traj.sections, args.select, args.columns, args.rows),
                           args.columns, args.thumb_width, title)
     from expoctl.io import write_png
