@@ -15,7 +15,7 @@ log = logging.getLogger(__name__)
 def run(cfg: dict, tracker) -> None:
     out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
     t0 = time.perf_counter()
-    summaries = collect(cfg, out_dir, progress=sys.stderr.isatty())
+    summaries = collect(cfg, out_dir, progress=sys.stderr.isatty(), project_root=PROJECT_ROOT)
     seconds = time.perf_counter() - t0
     n_frames = sum(s["n_frames"] for s in summaries)
     metrics = {
