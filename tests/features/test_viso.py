@@ -127,3 +127,17 @@ def test_parity_with_the_original(ref):
     assert len(matches) == got["n_raw_matches"]
     c_mean = np.mean([ransac_inlier_count(matches, p.ransac_iters, p.inlier_threshold, s) for s in range(5)])
     assert abs(c_mean - ref["n_inliers_nobucket"]) <= max(0.05 * ref["n_inliers_nobucket"], 3)
+
+
+@pytest.mark.parametrize(
+    "params", [{"multi_stage": False}, {"refinement": 0}, {"half_resolution": False}, {"nms_n": 2, "nms_tau": 30}]
+)
+def test_pipeline_variants_match_a_translation(params):
+    fe = VisoFrontEnd(params)
+    a = fe.extract(_textured(shift=(0, 0)))
+    b = fe.extract(_textured(shift=(4, 6)))
+    n_matches, n_inliers = fe.match(a, b, seed=1)
+    assert n_matches > 100
+    assert n_inliers >= 0.9 * n_matches
+    if params.get("half_resolution") is False:
+        assert (a.dense.u % 2 == 1).any()  # matching at full resolution: odd positions occur

@@ -80,6 +80,7 @@ def test_ransac_recovers_a_known_f_and_its_inliers():
 def test_ransac_is_deterministic_per_seed_and_needs_10_matches():
     m, _ = _scene(30, 30, seed=4)
     assert ransac_inlier_count(m, 200, 1e-5, 7) == ransac_inlier_count(m, 200, 1e-5, 7)
+    assert ransac_inlier_count(m, 200, 1e-5, -7) >= 30  # any int is a valid seed
     assert ransac_inlier_count(m[:9], 2000, 1e-5, 0) == 0
     assert ransac_inlier_count(m[:0], 2000, 1e-5, 0) == 0
 

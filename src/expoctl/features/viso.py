@@ -135,7 +135,7 @@ def match_matches(
 
 
 def _bucketed_inliers(matches: np.ndarray, p: VisoParams, seed: int) -> tuple[int, int]:
-    rng = np.random.default_rng([int(seed), 1])  # a stream distinct from RANSAC's
+    rng = np.random.default_rng([int(seed) % 2**64, 1])  # a stream distinct from RANSAC's
     kept = bucket(matches, p.max_features, p.bucket_width, p.bucket_height, rng)
     return len(kept), ransac_inlier_count(kept, p.ransac_iters, p.inlier_threshold, seed)
 

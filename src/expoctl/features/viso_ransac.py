@@ -212,8 +212,8 @@ def _inlier_mask(f, pu, pv, cu, cv, threshold) -> np.ndarray:
 
 
 def _numba_seed(seed: int) -> int:
-    # numba's np.random.seed takes an unsigned 32-bit value
-    return int(np.random.SeedSequence(int(seed)).generate_state(1)[0])
+    # numba's np.random.seed takes an unsigned 32-bit value; any int (negative too) maps to one
+    return int(np.random.SeedSequence(int(seed) % 2**64).generate_state(1)[0])
 
 
 def bucket(matches: np.ndarray, max_features: int, width: int, height: int, rng: np.random.Generator) -> np.ndarray:
