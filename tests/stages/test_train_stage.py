@@ -90,6 +90,7 @@ WORKER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_torchrun_two_cpu_processes(tmp_path):
     cfg = make_cfg(tmp_path, epochs=2)
     (tmp_path / "cfg.json").write_text(json.dumps(cfg))

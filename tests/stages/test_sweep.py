@@ -1,0 +1,71 @@
+"""The random hyperparameter sweep: reproducible draws, applied overrides, and a real 2-trial Hydra multirun."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import pytest
+import yaml
+
+from expoctl.errors import ConfigError
+from expoctl.synthetic_data import make_synthetic_dataset
+from stages.sweep import apply_trial, sample_trial
+
+ROOT = Path(__file__).resolve().parents[2]
+SPACE = yaml.safe_load((ROOT / "conf" / "sweep" / "default.yaml").read_text())["sweep"]["space"]
+
+
+def test_draws_are_reproducible_and_inside_the_space():
+    a, b, c = sample_trial(SPACE, 0, 3), sample_trial(SPACE, 0, 3), sample_trial(SPACE, 0, 4)
+    assert a == b and a != c
+    assert set(a) >= {"train.lr", "train.batch_size", "train.epsilon", "model.dropout", "model.width_multiplier"}
+    draws = [sample_trial(SPACE, 1, t) for t in range(20)]
+    assert all(1e-5 <= d["train.lr"] <= 3e-3 and 0.2 <= d["train.epsilon"] <= 0.8 for d in draws)
+    assert all(d["train.batch_size"] in (16, 32, 64, 128) for d in draws)
+    assert len({d["train.batch_size"] for d in draws}) > 1
+    with pytest.raises(ConfigError, match="sweep.space.train.lr"):
+        sample_trial({"train.lr": {"type": "gaussian"}}, 0, 0)
+
+
+def test_apply_trial_sets_keys_and_concrete_widths():
+    cfg = {"model": {"conv_widths": [30, 60, 120, 240], "fc_widths": [128, 64, 32], "dropout": 0.4},
+           "train": {"lr": 1e-4}}
+    out, overrides = apply_trial(cfg, {"train.lr": 1e-3, "model.width_multiplier": 0.5})
+    assert out["train"]["lr"] == 1e-3 and cfg["train"]["lr"] == 1e-4  # input untouched
+    assert out["model"]["conv_widths"] == [15, 30, 60, 120] and out["model"]["fc_widths"] == [64, 32, 16]
+    assert overrides == ["train.lr=0.001", "model.conv_widths=[15,30,60,120]", "model.fc_widths=[64,32,16]"]
+    with pytest.raises(ConfigError, match="sweep.space.train.nope"):
+        apply_trial(cfg, {"train.nope": 1})
+
+
+@pytest.mark.slow
+def test_two_trial_sweep_at_fixture_scale(tmp_path):
+    data = make_synthetic_dataset(tmp_path / "data", n_sequences=4, n_frames=8, hw=(32, 32), seed=0)
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    cmd = [sys.executable, "-m", "stages.sweep", "scale=fixture", "sweep.trial=range(2)",
+           f"hydra.sweep.dir={tmp_path}/sweep", f"paths.samples={data['samples']}", f"paths.frames={data['frames']}",
+           f"paths.images_dir={data['images_dir']}", f"paths.model={tmp_path}/models/controller.pt",
+           f"paths.reports_dir={tmp_path}/reports", "model.input_size=32", "model.conv_kernels=[3,3,3]",
+           "model.pool=2", "train.epochs=2", "train.num_threads=1"]
+    env = {**os.environ, "MLFLOW_TRACKING_URI": uri, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    best = yaml.safe_load((tmp_path / "sweep" / "best.yaml").read_text())
+    assert best["n_trials"] == best["n_trials_finished"] == 2
+
+    client = mlflow.tracking.MlflowClient(uri)
+    parent = client.get_run(best["parent_run_id"])
+    children = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent.info.run_id}'")
+    assert sorted(r.data.params["trial"] for r in children) == ["0", "1"]
+    objectives = {r.info.run_id: r.data.metrics["objective"] for r in children}
+    assert best["best_run_id"] == min(objectives, key=objectives.get)
+    assert parent.data.metrics["best_objective"] == pytest.approx(min(objectives.values()))
+    assert parent.info.status == "FINISHED"
+    assert any(k.startswith("best.train.lr") for k in parent.data.params)
+    assert len(client.get_metric_history(children[0].info.run_id, "val_loss")) == 2  # per-epoch series
+    # trials write no pipeline outputs
+    assert not (tmp_path / "models").exists() and not (tmp_path / "reports").exists()
