@@ -1,0 +1,14 @@
+"""The simulated world: cities (routes, roadside, tunnels), absolute-luminance rendering and motion blur.
+
+Public API:
+- load_city(name_or_dict, city_dir=None) -> City      ('train', 'validation', 'test' or a config dict)
+- City.traversal(index, n_frames=None, fps=15.0, seed=0) -> Trajectory
+- Renderer(city, width, height, hfov_deg, ...).render(pose) -> (luminance_cd_m2 HxWx3, depth_m HxW)
+- Renderer.render_exposure(trajectory, frame_index, exposure_us, camera_offset_m=0.0) -> luminance_cd_m2
+- intrinsics(width, height, hfov_deg) -> 3x3 K
+"""
+
+from expoctl.world.city import City, Conditions, Trajectory, load_city
+from expoctl.world.renderer import Renderer, intrinsics
+
+__all__ = ["City", "Conditions", "Trajectory", "Renderer", "intrinsics", "load_city"]

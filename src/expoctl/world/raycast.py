@@ -1,0 +1,286 @@
+"""Numba ray caster: per pixel, walk the segment table, find the first surface, shade it in absolute luminance.
+
+Shading is Lambertian: L = albedo · E / π per RGB channel (cd/m²; E in lux), with E from
+- outside: direct sun (n·s, shadow ray through the same walker) + sky diffuse E_sky·(1 + n_z)/2;
+- inside a tunnel: the lamps as flat Lambertian panels (I = L_lamp·A·cos θ, inverse-square, cosine at the surface),
+  a daylight tail frac·E_global·exp(−3x/tail_m) from each portal (x = depth into the tunnel; 5 % left at tail_m),
+  an interreflection ambient, and direct sun where the shadow ray leaves through a portal.
+Emitters: lamp panels (box-filtered coverage, so sub-pixel lamps do not flicker), sky (CIE overcast or HDRI), sun disk.
+Textures are sampled trilinearly from mip pyramids at the level of the projected pixel footprint.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from expoctl.world import route as rt
+
+SKY, GROUND, SIDE, ROOF, TWALL, TCEIL, FACE, HILLTOP, FAR = 0, 1, 2, 3, 4, 5, 6, 7, 8
+INF = 1.0e30
+
+# lighting parameter vector (float64) indices
+LP_SUN = 0  # 3: unit vector toward the sun (world)
+LP_E_SUN, LP_E_SKY, LP_LZ = 3, 4, 5  # normal sun illuminance, horizontal sky illuminance (lux), sky zenith cd/m²
+LP_SKY_RGB = 6  # 3
+LP_SUN_DISK_L, LP_SUN_COS = 9, 10  # sun-disk luminance, cos of its angular radius
+LP_LAMP_L, LP_LAMP_RGB, LP_LAMP_LEN, LP_LAMP_W, LP_LAMP_SPACING = 11, 12, 15, 16, 17
+LP_N_ROWS, LP_ROWS = 18, 19  # up to 4 lamp rows (lateral positions)
+LP_TAIL_M, LP_TAIL_FRAC, LP_INTERREFL, LP_E_LAMP_NOM = 23, 24, 25, 26
+LP_ROAD_HALF, LP_LANE_W, LP_LANES, LP_SIDEWALK = 27, 28, 29, 30
+LP_TEXEL_M, LP_TILE_PX, LP_MIP_BIAS, LP_TMAX, LP_ZTOP = 31, 32, 33, 34, 35
+LP_HDRI, LP_HDRI_AZ, LP_HDRI_SCALE = 36, 37, 38
+LP_N = 39
+
+MAT_ROAD, MAT_SIDEWALK, MAT_VERGE = 0, 1, 2
+MAT_TWALL, MAT_TCEIL, MAT_PORTAL, MAT_HILL, MAT_ROOF = 7, 8, 9, 10, 11
+
+
+@njit(cache=True, inline="always")
+def _dot(seg, i, c, x, y, z):
+    return x * seg[i, c] + y * seg[i, c + 1] + z * seg[i, c + 2]
+
+
+@njit(cache=True)
+def _inside_profile(seg, j, v, w):
+    hw = seg[j, rt.HW]
+    if w <= 0.0 or v <= -hw or v >= hw:
+        return False
+    if seg[j, rt.ARC_R] == 0.0:
+        return w < seg[j, rt.CROWN_H]
+    if w <= seg[j, rt.WALL_H]:
+        return True
+    dc = w - seg[j, rt.ARC_C]
+    return v * v + dc * dc < seg[j, rt.ARC_R] ** 2
+
+
+@njit(cache=True)
+def _block_entry(o_v, o_w, d_v, d_w, off, h, sign):
+    """Entry time of the ray into the solid {sign·v > off, w < h} and whether it enters through the side (True) or the roof."""
+    # interval where sign*v > off
+    sv, sdv = sign * o_v, sign * d_v
+    if sdv > 1e-12:
+        lo_v, hi_v = (off - sv) / sdv, INF
+    elif sdv < -1e-12:
+        lo_v, hi_v = -INF, (off - sv) / sdv
+    elif sv > off:
+        lo_v, hi_v = -INF, INF
+    else:
+        return INF, True
+    if d_w < -1e-12:
+        lo_w, hi_w = (h - o_w) / d_w, INF
+    elif d_w > 1e-12:
+        lo_w, hi_w = -INF, (h - o_w) / d_w
+    elif o_w < h:
+        lo_w, hi_w = -INF, INF
+    else:
+        return INF, True
+    entry = max(lo_v, lo_w)
+    if entry < min(hi_v, hi_w):
+        return entry, lo_v >= lo_w
+    return INF, True
+
+
+@njit(cache=True)
+def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop):
+    """First hit along o + t·d. Returns (t, code, frame_seg, air_seg, air_inside, u, v, w, nu, nv, nw, mat)."""
+    nseg = seg.shape[0]
+    i = i0
+    inside = inside0
+    t0 = 0.0
+    for _ in range(4096):
+        ou = _dot(seg, i, rt.F, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        ov = _dot(seg, i, rt.R, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        ow = _dot(seg, i, rt.U, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        du = _dot(seg, i, rt.F, dx, dy, dz)
+        dv = _dot(seg, i, rt.R, dx, dy, dz)
+        dw = _dot(seg, i, rt.U, dx, dy, dz)
+        # nothing above ztop: a rising ray above it sees only sky
+        if dw > 0.0 and ow + t0 * dw > ztop:
+            return INF, SKY, i, i, inside, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
+        t_exit = INF
+        dirn = 0
+        dn = _dot(seg, i, rt.NE, dx, dy, dz)
+        if dn > 1e-12:
+            te = _dot(seg, i, rt.NE, seg[i, rt.P1] - ox, seg[i, rt.P1 + 1] - oy, seg[i, rt.P1 + 2] - oz) / dn
+            if te < t_exit:
+                t_exit, dirn = max(te, t0), 1
+        dn = _dot(seg, i, rt.NS, dx, dy, dz)
+        if dn < -1e-12:
+            ts = _dot(seg, i, rt.NS, seg[i, 0] - ox, seg[i, 1] - oy, seg[i, 2] - oz) / dn
+            if ts < t_exit:
+                t_exit, dirn = max(ts, t0), -1
+        best = min(t_exit, tmax)
+        code = -1
+        nu = nv = nw = 0.0
+        mat = -1
+        if seg[i, rt.KIND] == rt.KIND_TUNNEL and inside:
+            hw = seg[i, rt.HW]
+            wall_h = seg[i, rt.WALL_H]
+            if dw < -1e-12:
+                t = -ow / dw
+                if t0 <= t < best:
+                    best, code, nu, nv, nw, mat = t, GROUND, 0.0, 0.0, 1.0, MAT_ROAD
+            if dv > 1e-12:
+                t = (hw - ov) / dv
+                if t0 <= t < best and ow + t * dw <= wall_h:
+                    best, code, nu, nv, nw, mat = t, TWALL, 0.0, -1.0, 0.0, MAT_TWALL
+            elif dv < -1e-12:
+                t = (-hw - ov) / dv
+                if t0 <= t < best and ow + t * dw <= wall_h:
+                    best, code, nu, nv, nw, mat = t, TWALL, 0.0, 1.0, 0.0, MAT_TWALL
+            rho = seg[i, rt.ARC_R]
+            if rho == 0.0:
+                if dw > 1e-12:
+                    t = (seg[i, rt.CROWN_H] - ow) / dw
+                    if t0 <= t < best:
+                        best, code, nu, nv, nw, mat = t, TCEIL, 0.0, 0.0, -1.0, MAT_TCEIL
+            else:
+                c = seg[i, rt.ARC_C]
+                a = dv * dv + dw * dw
+                if a > 1e-12:
+                    b = 2.0 * (ov * dv + (ow - c) * dw)
+                    cc = ov * ov + (ow - c) ** 2 - rho * rho
+                    disc = b * b - 4.0 * a * cc
+                    if disc > 0.0:
+                        t = (-b + math.sqrt(disc)) / (2.0 * a)
+                        wh = ow + t * dw
+                        if t0 <= t < best and wh >= wall_h:
+                            vh = ov + t * dv
+                            best, code, mat = t, TCEIL, MAT_TCEIL
+                            nu, nv, nw = 0.0, -vh / rho, -(wh - c) / rho
+        elif seg[i, rt.KIND] == rt.KIND_TUNNEL:
+            if dw < -1e-12:
+                t = (seg[i, rt.HILL_H] - ow) / dw
+                if t0 <= t < best:
+                    best, code, nu, nv, nw, mat = t, HILLTOP, 0.0, 0.0, 1.0, MAT_HILL
+        else:
+            if dw < -1e-12:
+                t = -ow / dw
+                if t0 <= t < best:
+                    best, code, nu, nv, nw, mat = t, GROUND, 0.0, 0.0, 1.0, MAT_VERGE
+            for sgn in (-1.0, 1.0):
+                if sgn < 0:
+                    off, h, m = seg[i, rt.L_OFF], seg[i, rt.L_H], seg[i, rt.L_MAT]
+                else:
+                    off, h, m = seg[i, rt.R_OFF], seg[i, rt.R_H], seg[i, rt.R_MAT]
+                if off < rt.NO_BLOCK_OFFSET:
+                    t, side = _block_entry(ov, ow, dv, dw, off, h, sgn)
+                    if t0 <= t < best:
+                        best, mat = t, int(m)
+                        if side:
+                            code, nu, nv, nw = SIDE, 0.0, -sgn, 0.0
+                        else:
+                            code, nu, nv, nw = ROOF, 0.0, 0.0, 1.0
+                            mat = MAT_ROOF
+        if code >= 0:
+            return (best, code, i, i, inside, ou + best * du, ov + best * dv, ow + best * dw, nu, nv, nw, mat)
+        if t_exit >= tmax:
+            if dz < 0.0:
+                return INF, FAR, i, i, inside, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, MAT_VERGE
+            return INF, SKY, i, i, inside, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
+        # cross into the neighbouring segment
+        t0 = t_exit
+        j = (i + dirn) % nseg
+        px, py, pz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
+        pu = _dot(seg, j, rt.F, px - seg[j, 0], py - seg[j, 1], pz - seg[j, 2])
+        pv = _dot(seg, j, rt.R, px - seg[j, 0], py - seg[j, 1], pz - seg[j, 2])
+        pw = _dot(seg, j, rt.U, px - seg[j, 0], py - seg[j, 1], pz - seg[j, 2])
+        if abs(pv) > seg[j, rt.VMAX]:
+            if dz < 0.0:
+                return INF, FAR, j, j, False, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, MAT_VERGE
+            return INF, SKY, j, j, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
+        if seg[j, rt.KIND] == rt.KIND_TUNNEL:
+            if seg[i, rt.KIND] != rt.KIND_TUNNEL:
+                if _inside_profile(seg, j, pv, pw):
+                    inside = True
+                elif pw < seg[j, rt.HILL_H]:
+                    return (t0, FACE, j, i, inside, pu, pv, pw, -float(dirn), 0.0, 0.0, MAT_PORTAL)
+                else:
+                    inside = False
+        else:
+            inside = False
+            if pv < -seg[j, rt.L_OFF] and pw < seg[j, rt.L_H]:
+                return (t0, FACE, j, i, False, pu, pv, pw, -float(dirn), 0.0, 0.0, int(seg[j, rt.L_MAT]))
+            if pv > seg[j, rt.R_OFF] and pw < seg[j, rt.R_H]:
+                return (t0, FACE, j, i, False, pu, pv, pw, -float(dirn), 0.0, 0.0, int(seg[j, rt.R_MAT]))
+        i = j
+    return INF, SKY, i, i, inside, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
+
+
+@njit(cache=True, inline="always")
+def _hash01(a, b):
+    h = (a * 374761393 + b * 668265263) & 0xFFFFFFFF
+    h = ((h ^ (h >> 13)) * 1274126177) & 0xFFFFFFFF
+    h = h ^ (h >> 16)
+    return h / 4294967296.0
+
+
+@njit(cache=True)
+def _bilinear(texels, base, n, x, y, out, weight):
+    """Add weight × bilinear sample (wrap-around) of the (n, n, 3) level at texel coords (x, y)."""
+    x -= 0.5
+    y -= 0.5
+    fx0 = math.floor(x)
+    fy0 = math.floor(y)
+    ax = x - fx0
+    ay = y - fy0
+    x0 = int(fx0) % n
+    y0 = int(fy0) % n
+    x1 = (x0 + 1) % n
+    y1 = (y0 + 1) % n
+    for c in range(3):
+        v00 = texels[base + (y0 * n + x0) * 3 + c]
+        v01 = texels[base + (y0 * n + x1) * 3 + c]
+        v10 = texels[base + (y1 * n + x0) * 3 + c]
+        v11 = texels[base + (y1 * n + x1) * 3 + c]
+        out[c] += weight * ((v00 * (1 - ax) + v01 * ax) * (1 - ay) + (v10 * (1 - ax) + v11 * ax) * ay)
+
+
+@njit(cache=True)
+def _sample(texels, offs, sizes, scales, mat, a_m, b_m, footprint_m, texel_m, out):
+    """Trilinear mip sample of material `mat` at surface coords (a along the route, b across/up) in metres."""
+    n0 = sizes[mat, 0]
+    tile_m = n0 * texel_m
+    cell = int(math.floor(a_m / tile_m))
+    shift = _hash01(cell, mat + 17) * tile_m  # random tile offset per cell: breaks periodicity along the route
+    a = a_m + shift
+    nlev = sizes.shape[1]
+    lev = math.log2(max(footprint_m / texel_m, 1e-6))
+    lev = min(max(lev, 0.0), nlev - 1.0)
+    l0 = int(lev)
+    fr = lev - l0
+    l1 = min(l0 + 1, nlev - 1)
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    s0 = 1 << l0
+    _bilinear(texels, offs[mat, l0], sizes[mat, l0], a / (texel_m * s0), b_m / (texel_m * s0), out, 1.0 - fr)
+    if fr > 0.0:
+        s1 = 1 << l1
+        _bilinear(texels, offs[mat, l1], sizes[mat, l1], a / (texel_m * s1), b_m / (texel_m * s1), out, fr)
+    k = scales[mat] / 255.0
+    out[0] *= k
+    out[1] *= k
+    out[2] *= k
+
+
+@njit(cache=True, inline="always")
+def _box_cover(x, half, c, half_w):
+    """Fraction of the box [x−half, x+half] covered by [c−half_w, c+half_w]."""
+    lo = max(x - half, c - half_w)
+    hi = min(x + half, c + half_w)
+    return max(0.0, hi - lo) / (2.0 * half)
+
+
+@njit(cache=True, inline="always")
+def _dash_integral(x, period, on):
+    return math.floor(x / period) * on + min(x - math.floor(x / period) * period, on)
+
+
+@njit(cache=True, inline="always")
+def _dash_cover(x, half, period, on, phase):
+    """Fraction of [x−half, x+half] covered by a periodic dash pattern (on-length `on`, starting at `phase`)."""
+    return (_dash_integral(x + half - phase, period, on) - _dash_integral(x - half - phase, period, on)) / (2 * half)

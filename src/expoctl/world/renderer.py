@@ -1,0 +1,338 @@
+"""Renderer: scene luminance (cd/m², linear RGB with Y = 0.2126R + 0.7152G + 0.0722B) and depth for a pose, and the
+exposure-averaged (motion-blurred) luminance a global-shutter camera integrates over [t, t + exposure].
+
+Motion blur: `blur="reference"` averages sub-frame renders across the exposure interval (enough sub-frames that
+consecutive ones move < 0.5 px); `blur="fast"` renders once at mid-exposure and smears each pixel along its
+ego-motion flow (from depth and the analytic trajectory). tests/world/test_renderer.py states the fast path's error
+against the reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from expoctl.errors import ConfigError
+from expoctl.world import raycast as rc
+from expoctl.world import route as rt
+from expoctl.world.city import SUN_DISK_SOLID_ANGLE_SR, City, Conditions, Trajectory
+from expoctl.world.cities import MATERIALS
+from expoctl.world.shade import render_kernel
+from expoctl.world.sky import hdri_for
+
+_Y = np.array([0.2126, 0.7152, 0.0722])
+
+
+def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
+    """Pinhole K (3×3, pixels) for square pixels, principal point at the image centre."""
+    if not (isinstance(width, (int, np.integer)) and width > 0 and isinstance(height, (int, np.integer)) and height > 0):
+        raise ConfigError("world.render.width", f"width/height must be positive integers, got {width}x{height}")
+    if not 1.0 < float(hfov_deg) < 179.0:
+        raise ConfigError("world.render.hfov_deg", f"must be in (1, 179) degrees, got {hfov_deg}")
+    f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+    return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _rgb_norm(rgb):
+    rgb = np.asarray(rgb, dtype=np.float64)
+    return rgb / float(rgb @ _Y)
+
+
+class Renderer:
+    """Render a city from camera poses.
+
+    width, height: pixels; hfov_deg: horizontal field of view; glare_fraction: share of image luminance scattered
+    by the lens into a wide halo (veiling glare, 0.1–1 %); mip_bias: texture footprint multiplier (>1 blurs more,
+    <1 sharper but aliasing); blur: 'fast' or 'reference'.
+    """
+
+    def __init__(self, city: City, width: int = 640, height: int = 480, hfov_deg: float = 70.0,
+                 glare_fraction: float = 0.005, mip_bias: float = 1.0, tmax_m: float = 400.0, blur: str = "fast",
+                 max_subframes: int = 48, conditions: Conditions | None = None):
+        self.K = intrinsics(width, height, hfov_deg)
+        if not 0.0 <= glare_fraction <= 0.05:
+            raise ConfigError("world.render.glare_fraction", f"must be in [0, 0.05], got {glare_fraction}")
+        if not mip_bias > 0:
+            raise ConfigError("world.render.mip_bias", f"must be > 0, got {mip_bias}")
+        if blur not in ("fast", "reference"):
+            raise ConfigError("world.render.blur", f"must be 'fast' or 'reference', got {blur!r}")
+        if not (isinstance(max_subframes, int) and max_subframes >= 1):
+            raise ConfigError("world.render.max_subframes", f"must be an integer >= 1, got {max_subframes!r}")
+        self.city, self.width, self.height, self.hfov_deg = city, int(width), int(height), float(hfov_deg)
+        self.glare_fraction, self.blur, self.max_subframes = float(glare_fraction), blur, max_subframes
+        self.seg = np.ascontiguousarray(city.segments)
+        self.texels, self.offs, self.sizes, self.scales = city.texture_atlas()
+        cfg = city.cfg
+        self.albedo = np.array([float(cfg["albedo"][m]) for m in MATERIALS])
+        self._base_lp = self._static_lighting(cfg, mip_bias, tmax_m)
+        self._lamp_count, self._e_nom = self._lamp_layout(cfg)
+        self._cache: dict = {}
+        self.set_conditions(conditions if conditions is not None else city.conditions(0, 0))
+
+    @classmethod
+    def from_config(cls, city: City, render_cfg: dict, conditions: Conditions | None = None) -> "Renderer":
+        """Build from the `world.render` config group (keys as in conf/world/default.yaml); unknown keys are errors."""
+        allowed = {"width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes"}
+        if not isinstance(render_cfg, dict):
+            raise ConfigError("world.render", "must be a mapping")
+        for key in render_cfg:
+            if key not in allowed:
+                raise ConfigError(f"world.render.{key}", f"unknown key; known: {', '.join(sorted(allowed))}")
+        for key in ("width", "height", "max_subframes"):
+            v = render_cfg.get(key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+                raise ConfigError(f"world.render.{key}", f"must be a positive integer, got {v!r}")
+        for key in ("hfov_deg", "glare_fraction", "mip_bias", "tmax_m"):
+            v = render_cfg.get(key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+                raise ConfigError(f"world.render.{key}", f"must be a number, got {v!r}")
+        if "tmax_m" in render_cfg and not render_cfg["tmax_m"] > 10:
+            raise ConfigError("world.render.tmax_m", f"must be > 10 m, got {render_cfg['tmax_m']}")
+        return cls(city, conditions=conditions, **render_cfg)
+
+    # ------------------------------------------------------------------ lighting setup
+    def _static_lighting(self, cfg, mip_bias, tmax_m):
+        lp = np.zeros(rc.LP_N)
+        lamps, light, road = cfg["lamps"], cfg["lighting"], cfg["road"]
+        lp[rc.LP_LAMP_L] = float(lamps["luminance_cd_m2"])
+        lp[rc.LP_LAMP_RGB:rc.LP_LAMP_RGB + 3] = _rgb_norm(lamps["colour_rgb"])
+        lp[rc.LP_LAMP_LEN], lp[rc.LP_LAMP_W] = float(lamps["length_m"]), float(lamps["width_m"])
+        lp[rc.LP_LAMP_SPACING] = float(lamps["spacing_m"])
+        rows = [float(v) for v in lamps["rows_v_m"]][:4]
+        lp[rc.LP_N_ROWS] = len(rows)
+        lp[rc.LP_ROWS:rc.LP_ROWS + len(rows)] = rows
+        lp[rc.LP_TAIL_M], lp[rc.LP_TAIL_FRAC] = float(light["daylight_tail_m"]), float(light["daylight_tail_fraction"])
+        lp[rc.LP_INTERREFL] = float(light["interreflection"])
+        lp[rc.LP_ROAD_HALF] = road["lanes"] * road["lane_width_m"] / 2 + road["shoulder_m"]
+        lp[rc.LP_LANE_W], lp[rc.LP_LANES], lp[rc.LP_SIDEWALK] = road["lane_width_m"], road["lanes"], road["sidewalk_m"]
+        lp[rc.LP_TEXEL_M], lp[rc.LP_TILE_PX] = float(cfg["textures"]["texel_m"]), float(cfg["textures"]["tile_px"])
+        lp[rc.LP_MIP_BIAS], lp[rc.LP_TMAX] = float(mip_bias), float(tmax_m)
+        lp[rc.LP_ZTOP] = float(max(self.seg[:, rt.HILL_H].max(), self.seg[:, rt.L_H].max(), self.seg[:, rt.R_H].max())
+                               + 0.5)
+        return lp
+
+    def _lamp_layout(self, cfg):
+        spacing = float(cfg["lamps"]["spacing_m"])
+        counts = np.array([max(1, int((float(t["length_m"]) - 0.5 * spacing) // spacing) + 1) for t in cfg["tunnels"]]
+                          or [1], dtype=np.int64)
+        # nominal road illuminance between two interior lamps (all multipliers 1), lane centre, for CIE 88 zoning
+        e_nom = []
+        area = float(cfg["lamps"]["length_m"]) * float(cfg["lamps"]["width_m"])
+        for t in cfg["tunnels"] or [{"height_m": 5.0}]:
+            h = float(t["height_m"]) - 0.05
+            e = 0.0
+            for k in range(-6, 7):
+                du = (k + 0.5) * spacing
+                for vr in cfg["lamps"]["rows_v_m"]:
+                    dv = float(vr) - self.city.lane_offset_m
+                    hh = h if t.get("profile", "box") == "box" else 0.95 * h
+                    r2 = du * du + dv * dv + hh * hh
+                    e += float(cfg["lamps"]["luminance_cd_m2"]) * area * (hh / math.sqrt(r2)) ** 2 / r2
+            e_nom.append(e)
+        return counts, np.array(e_nom)
+
+    def set_conditions(self, conditions: Conditions) -> None:
+        """Set sun, sky and lamp zoning (CIE 88 threshold/transition reinforcement depends on outside daylight)."""
+        cfg, lp = self.city.cfg, self._base_lp.copy()
+        lp[0:3] = conditions.sun_direction
+        lp[rc.LP_E_SUN] = conditions.sun_illuminance_lux if conditions.sun_direction[2] > 0 else 0.0
+        lp[rc.LP_LZ] = conditions.sky_zenith_cd_m2
+        lp[rc.LP_E_SKY] = conditions.sky_illuminance_lux
+        lp[rc.LP_SKY_RGB:rc.LP_SKY_RGB + 3] = _rgb_norm([0.97, 1.0, 1.06] if conditions.overcast else [0.78, 0.97, 1.4])
+        lp[rc.LP_SUN_DISK_L] = conditions.sun_illuminance_lux / SUN_DISK_SOLID_ANGLE_SR
+        lp[rc.LP_SUN_COS] = math.cos(math.radians(0.2665))
+        self.hdri = np.zeros((1, 1, 3), np.float32)
+        if conditions.hdri is not None:
+            img, scale, e_sky = hdri_for(conditions.hdri)
+            self.hdri = img
+            lp[rc.LP_HDRI], lp[rc.LP_HDRI_SCALE] = 1.0, scale
+            lp[rc.LP_HDRI_AZ] = math.radians(float(conditions.hdri.get("azimuth_deg", 0.0)))
+            lp[rc.LP_E_SKY] = e_sky
+        light = cfg["lighting"]
+        albedo_road = float(cfg["albedo"]["road"])
+        e_glob = lp[rc.LP_E_SKY] + lp[rc.LP_E_SUN] * max(lp[2], 0.0)
+        l_access = albedo_road * e_glob / math.pi  # CIE 88 L20 approximated by the sunlit/daylit road ahead
+        spacing = float(cfg["lamps"]["spacing_m"])
+        mult = np.ones((len(self._lamp_count), int(self._lamp_count.max())))
+        k, l_th, l_tr = float(light["threshold_k"]), float(light["threshold_length_m"]), float(light["transition_length_m"])
+        for ti, n in enumerate(self._lamp_count):
+            l_nom = albedo_road * self._e_nom[ti] * (1 + float(light["interreflection"])) / math.pi
+            for j in range(n):
+                x = 0.5 * spacing + j * spacing
+                if x < 0.5 * l_th:
+                    target = k * l_access
+                elif x < l_th:  # second half of the threshold zone: linear to 0.4·k·L20
+                    target = k * l_access * (1 - 0.6 * (x - 0.5 * l_th) / (0.5 * l_th))
+                elif x < l_th + l_tr:  # transition zone, CIE 88 curve at a 60 km/h design speed
+                    target = 0.4 * k * l_access * ((1.9 + (x - l_th) / 16.7) / 1.9) ** -1.4
+                else:
+                    target = 0.0
+                mult[ti, j] = max(1.0, target / max(l_nom, 1e-9))
+        self.lamp_mult = mult
+        lp[rc.LP_E_LAMP_NOM] = 0.0 if not cfg["tunnels"] else float(np.mean(self._e_nom))
+        self.lp = lp
+        self.conditions = conditions
+        self._cache.clear()
+
+    # ------------------------------------------------------------------ rendering
+    def locate(self, position: np.ndarray):
+        """Segment containing a world position and whether it is inside a tunnel's interior."""
+        seg = self.seg
+        d = position[None, :] - seg[:, rt.P0:rt.P0 + 3]
+        in_start = np.einsum("ij,ij->i", d, seg[:, rt.NS:rt.NS + 3]) >= -1e-9
+        in_end = np.einsum("ij,ij->i", position[None, :] - seg[:, rt.P1:rt.P1 + 3], seg[:, rt.NE:rt.NE + 3]) <= 1e-9
+        v = np.einsum("ij,ij->i", d, seg[:, rt.R:rt.R + 3])
+        w = np.einsum("ij,ij->i", d, seg[:, rt.U:rt.U + 3])
+        ok = in_start & in_end & (np.abs(v) < seg[:, rt.VMAX])
+        if not ok.any():
+            raise ValueError("camera position is outside the modelled corridor of the route")
+        cand = np.flatnonzero(ok)
+        i = int(cand[np.argmin(np.abs(v[cand]) + 10 * np.abs(w[cand]))])
+        inside = bool(seg[i, rt.KIND] == rt.KIND_TUNNEL and rc._inside_profile(seg, i, float(v[i]), float(w[i])))
+        return i, inside
+
+    def render_full(self, pose: np.ndarray, glare: bool = True) -> dict:
+        """Everything the kernel produces: luminance (H, W, 3) cd/m², depth (H, W) m (z-depth; inf for sky),
+        code (surface kind, raycast.SKY…FAR), material (index into cities.MATERIALS; 255 sky, 254 lamp)."""
+        pose = np.asarray(pose, dtype=np.float64)
+        i0, inside = self.locate(pose[:3, 3])
+        lum = np.empty((self.height, self.width, 3), np.float32)
+        depth = np.empty((self.height, self.width), np.float32)
+        code = np.empty((self.height, self.width), np.uint8)
+        mat = np.empty((self.height, self.width), np.uint8)
+        K = self.K
+        render_kernel(self.seg, self.lp, self.texels, self.offs, self.sizes, self.scales, self.albedo,
+                      self.lamp_mult, self._lamp_count, self.hdri, np.ascontiguousarray(pose[:3, 3]),
+                      np.ascontiguousarray(pose[:3, :3]), K[0, 0], K[1, 1], K[0, 2], K[1, 2], i0, inside,
+                      lum, depth, code, mat)
+        if glare:
+            lum = self.apply_glare(lum)
+        return {"luminance": lum, "depth": depth, "code": code, "material": mat}
+
+    def render(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(luminance_cd_m2 (H, W, 3) float32 incl. veiling glare, depth_m (H, W) float32 z-depth, inf for sky)."""
+        out = self.render_full(pose)
+        return out["luminance"], out["depth"]
+
+    def apply_glare(self, lum: np.ndarray) -> np.ndarray:
+        """Veiling glare: a fraction g of the image luminance is spread by a wide halo (two Gaussians, 2° and 10°)."""
+        g = self.glare_fraction
+        if g <= 0:
+            return lum
+        f = self.K[0, 0]
+        small = cv2.resize(lum, (max(1, self.width // 8), max(1, self.height // 8)), interpolation=cv2.INTER_AREA)
+        halo = np.zeros_like(small)
+        for sigma_deg in (2.0, 10.0):
+            sigma = max(0.5, f * math.radians(sigma_deg) / 8.0)
+            halo += 0.5 * cv2.GaussianBlur(small, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        halo = cv2.resize(halo, (self.width, self.height), interpolation=cv2.INTER_LINEAR)
+        return ((1.0 - g) * lum + g * halo).astype(np.float32)
+
+    @staticmethod
+    def _offset_pose(pose, camera_offset_m):
+        if camera_offset_m == 0.0:
+            return pose
+        p = pose.copy()
+        p[:3, 3] = pose[:3, 3] + pose[:3, 0] * camera_offset_m
+        return p
+
+    def render_exposure(self, trajectory: Trajectory, frame_index: int, exposure_us: float,
+                        camera_offset_m: float = 0.0, method: str | None = None) -> np.ndarray:
+        """Luminance (cd/m², incl. glare) averaged over the exposure [t_k, t_k + exposure] of frame k, for the camera
+        shifted `camera_offset_m` along its x axis (camera 2 of the rig: +0.0392 m)."""
+        if trajectory.conditions is not self.conditions:
+            self.set_conditions(trajectory.conditions)
+        method = method or self.blur
+        t0 = float(trajectory.timestamps_ns[frame_index]) * 1e-9
+        dur = float(exposure_us) * 1e-6
+        if method == "reference":
+            n = self._n_subframes(trajectory, t0, dur, camera_offset_m)
+            acc = np.zeros((self.height, self.width, 3), np.float64)
+            for k in range(n):
+                pose = self._offset_pose(trajectory.pose_at(t0 + (k + 0.5) * dur / n), camera_offset_m)
+                acc += self.render_full(pose, glare=False)["luminance"]
+            return self.apply_glare((acc / n).astype(np.float32))
+        # render once at mid-exposure and smear each pixel along its flow to the exposure's start and end poses.
+        # The sharp render is cached per (trajectory, frame, camera, exposure) so a camera's repeated calls are free.
+        key = (id(trajectory), frame_index, float(camera_offset_m), float(exposure_us))
+        mid = self._offset_pose(trajectory.pose_at(t0 + 0.5 * dur), camera_offset_m)
+        if key not in self._cache:
+            if len(self._cache) > 8:
+                self._cache.clear()
+            self._cache[key] = self.render_full(mid, glare=False)
+        sharp = self._cache[key]
+        flow_a, flow_b = self._flow(sharp["depth"], mid, self._offset_pose(trajectory.pose_at(t0), camera_offset_m),
+                                    self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m))
+        max_flow = float(np.max(np.hypot(flow_b[..., 0] - flow_a[..., 0], flow_b[..., 1] - flow_a[..., 1])))
+        if max_flow < 0.5:
+            return self.apply_glare(sharp["luminance"])
+        n = int(min(64, math.ceil(2 * max_flow) + 1))
+        out = np.empty_like(sharp["luminance"])
+        _smear(sharp["luminance"], flow_a.astype(np.float32), flow_b.astype(np.float32), n, out)
+        return self.apply_glare(out)
+
+    def _flow(self, depth, pose_ref, pose_a, pose_b):
+        """Pixel displacement (H, W, 2) of each rendered point from the reference pose to poses a and b."""
+        K = self.K
+        h, w = depth.shape
+        xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+        z = np.where(np.isfinite(depth), depth, 1.0e5).astype(np.float64)
+        pc = np.stack([(xs - K[0, 2]) / K[0, 0] * z, (ys - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+        pw = pc @ pose_ref[:3, :3].T + pose_ref[:3, 3]
+        res = []
+        for pose in (pose_a, pose_b):
+            q = (pw - pose[:3, 3]) @ pose[:3, :3]
+            zq = np.maximum(q[..., 2], 1e-3)
+            res.append(np.stack([K[0, 0] * q[..., 0] / zq + K[0, 2] - xs, K[1, 1] * q[..., 1] / zq + K[1, 2] - ys],
+                                axis=-1))
+        return res
+
+    def _n_subframes(self, trajectory, t0, dur, camera_offset_m):
+        """Sub-frames so that consecutive ones move < 0.5 px (from a coarse render's flow)."""
+        coarse = Renderer.__new__(Renderer)
+        coarse.__dict__.update(self.__dict__)
+        coarse.width, coarse.height = max(8, self.width // 8), max(6, self.height // 8)
+        coarse.K = intrinsics(coarse.width, coarse.height, self.hfov_deg)
+        p0 = self._offset_pose(trajectory.pose_at(t0), camera_offset_m)
+        p1 = self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m)
+        depth = coarse.render_full(p0, glare=False)["depth"]
+        fa, fb = coarse._flow(depth, p0, p0, p1)
+        max_flow = float(np.max(np.hypot(*(fb - fa).transpose(2, 0, 1)))) * self.width / coarse.width
+        return int(min(self.max_subframes, max(1, math.ceil(2 * max_flow))))
+
+
+@njit(cache=True, parallel=True)
+def _smear(img, flow_a, flow_b, n, out):
+    """out(x) = mean over the exposure of img sampled where the scene point seen at x at time τ sat at the reference
+    time: x − (flow at τ), flow interpolated linearly from flow_a (exposure start) to flow_b (end)."""
+    h, w = img.shape[0], img.shape[1]
+    for y in prange(h):
+        for x in range(w):
+            acc0 = 0.0
+            acc1 = 0.0
+            acc2 = 0.0
+            for k in range(n):
+                a = (k + 0.5) / n
+                sx = x - ((1 - a) * flow_a[y, x, 0] + a * flow_b[y, x, 0])
+                sy = y - ((1 - a) * flow_a[y, x, 1] + a * flow_b[y, x, 1])
+                sx = min(max(sx, 0.0), w - 1.0)
+                sy = min(max(sy, 0.0), h - 1.0)
+                x0 = int(sx)
+                y0 = int(sy)
+                x1 = min(x0 + 1, w - 1)
+                y1 = min(y0 + 1, h - 1)
+                fx = sx - x0
+                fy = sy - y0
+                w00 = (1 - fx) * (1 - fy)
+                w01 = fx * (1 - fy)
+                w10 = (1 - fx) * fy
+                w11 = fx * fy
+                acc0 += w00 * img[y0, x0, 0] + w01 * img[y0, x1, 0] + w10 * img[y1, x0, 0] + w11 * img[y1, x1, 0]
+                acc1 += w00 * img[y0, x0, 1] + w01 * img[y0, x1, 1] + w10 * img[y1, x0, 1] + w11 * img[y1, x1, 1]
+                acc2 += w00 * img[y0, x0, 2] + w01 * img[y0, x1, 2] + w10 * img[y1, x0, 2] + w11 * img[y1, x1, 2]
+            out[y, x, 0] = acc0 / n
+            out[y, x, 1] = acc1 / n
+            out[y, x, 2] = acc2 / n
