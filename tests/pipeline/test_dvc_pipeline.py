@@ -17,28 +17,38 @@ def _ran(output: str) -> set[str]:
 
 def test_repro_noop_and_per_key_rerun(project_copy):
     p = project_copy
-    for i, split in enumerate(("train", "validation", "test")):
-        write_synthetic_sequence(p.root / "data" / "raw" / split / f"seq_{split}", n_frames=5, seed=i)
+    for i, split in enumerate(("train", "train", "validation", "test")):
+        write_synthetic_sequence(p.root / "data" / "raw" / split / f"seq_{i}", n_frames=10, height=120, width=160,
+                                 seed=i)
+    all_stages = {"compose", "ingest", "features", "labels", "samples", "train"}
 
     first = p.dvc("repro")
-    assert _ran(first.stdout) == {"compose", "ingest"}, first.stdout
+    assert _ran(first.stdout) == all_stages, first.stdout
     frames = pd.read_parquet(p.root / "data" / "frames.parquet")
     assert {"sequence", "frame_id", "camera", "timestamp_ns", "gain_db", "exposure_us", "image_path", "split",
             "section"} <= set(frames.columns)
-    assert len(frames) == 3 * 5 * 2
-    assert p.stage_runs() == {"compose": 1, "ingest": 1}
+    assert len(frames) == 4 * 10 * 2
+    for out in ("data/features.parquet", "data/matches.parquet", "data/labels.parquet", "data/samples.parquet",
+                "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md"):
+        assert (p.root / out).is_file(), out
+    assert p.stage_runs() == {s: 1 for s in all_stages}
 
     second = p.dvc("repro")
     assert _ran(second.stdout) == set(), second.stdout
 
-    # An ingest key changes: compose and ingest re-run, nothing else.
-    p.set_overrides(["scale=fixture", "ingest.image_width=32"])
+    # An ingest key changes the stored images, not the frames table: features/labels/samples are skipped,
+    # train (which reads the images) re-runs.
+    p.set_overrides(["scale=fixture", "ingest.image_width=48"])
     third = p.dvc("repro")
-    assert _ran(third.stdout) == {"compose", "ingest"}, third.stdout
-    assert p.stage_runs() == {"compose": 2, "ingest": 2}
+    assert _ran(third.stdout) == {"compose", "ingest", "train"}, third.stdout
+
+    # A train key: only compose and train.
+    p.set_overrides(["scale=fixture", "ingest.image_width=48", "train.lr=0.0003"])
+    assert _ran(p.dvc("repro").stdout) == {"compose", "train"}
+    assert p.stage_runs() == {"compose": 3, "ingest": 2, "features": 1, "labels": 1, "samples": 1, "train": 3}
 
     # A key no stage reads except compose: only compose re-runs (its output changes, but no stage's keys do).
-    p.set_overrides(["scale=fixture", "ingest.image_width=32", "+unused_note=hello"])
+    p.set_overrides(["scale=fixture", "ingest.image_width=48", "train.lr=0.0003", "+unused_note=hello"])
     fourth = p.dvc("repro")
     assert _ran(fourth.stdout) == {"compose"}, fourth.stdout
 
