@@ -79,3 +79,21 @@ def test_preview_end_to_end_tiny(tmp_path):
     assert preview.run(args) == 0
     img = cv2.imread(str(out))
     assert img is not None and img.shape[1] == 4 * 68 + 4
+
+
+def test_video_has_every_frame(tmp_path):
+    from expoctl.rig.preview import write_video
+
+    frames = frames_with_exit()
+    path = tmp_path / "run.mp4"
+    write_video(frames, path, 15.0)
+    cap = cv2.VideoCapture(str(path))
+    n, levels = 0, []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        n += 1
+        levels.append(float(img[30:, :].mean()))  # below the text
+    assert n == len(frames) and cap.get(cv2.CAP_PROP_FPS) == 15.0
+    assert abs(levels[10] - 60) < 8 and abs(levels[22] - 255) < 8 and abs(levels[35] - 120) < 8
