@@ -1,0 +1,98 @@
+"""evaluate stage: every controller drives the simulated camera → reports/metrics.json, reports/eval/ (expoctl.evaluate).
+
+MLflow: besides the stage run (params, headline metrics, metrics.json), one nested child run per (controller, city)
+tagged controller / city / route_split, with that pair's section statistics, tracking success, VO error and timing
+as metrics and its timeline figure (NFM and gain/exposure around the portals) as an artifact — so the MLflow UI
+compares controllers side by side (select the child runs of one evaluate run, "Compare").
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from expoctl.evaluate import evaluate, metrics_summary, write_outputs
+from stages.common import PROJECT_ROOT, stage_main
+
+log = logging.getLogger(__name__)
+
+
+def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
+    root = Path(project_root or PROJECT_ROOT)
+    t0 = time.perf_counter()
+    result = evaluate(cfg, root, progress=sys.stderr.isatty())
+    seconds = time.perf_counter() - t0
+    out = write_outputs(result, root / cfg["paths"]["reports_dir"])
+    runs = result.runs
+    tracker.log_params({"sumlog": {k: {"alpha": list(v.alpha), "beta": v.beta, "rescale": v.rescale}
+                                   for k, v in result.sumlog.items()}})
+    tracker.log_metrics({"seconds": seconds, "n_runs": len(runs), "n_windows": len(result.windows),
+                         "n_frames": len(result.frames),
+                         "frames_per_s": len(result.frames) / max(seconds, 1e-9), **metrics_summary(result.metrics)})
+    tracker.log_artifact(out["metrics"])
+    log_child_runs(result, tracker)
+    for split, ctrls in result.metrics.items():
+        for ctrl, e in ctrls.items():
+            d, t = e["dynamic"]["orb"], e["tracking_success"]
+            log.info("%-10s %-15s dynamic ORB median %s min %s; VO %d/%d", split, ctrl, _fmt(d["median_nfm"]),
+                     _fmt(d["min_nfm"]), t[0], t[1])
+    log.info("%d runs, %d frames in %.0f s → %s", len(runs), len(result.frames), seconds, out["metrics"])
+
+
+def _fmt(v) -> str:
+    return "—" if v is None else f"{v:.0f}"
+
+
+def child_metrics(result, split: str, controller: str) -> dict[str, float]:
+    """The metrics of one (controller, city) child run."""
+    e = result.metrics[split][controller]
+    m: dict[str, float] = {}
+    for kind in ("static", "dynamic"):
+        for fe, stats in e[kind].items():
+            for stat, v in stats.items():
+                if v is not None:
+                    m[f"{kind}.{fe}.{stat}"] = float(v)
+    n_ok, n = e["tracking_success"]
+    m.update({"tracking_success_n_ok": n_ok, "tracking_success_n_runs": n, "tracking_success_rate": n_ok / n})
+    r = result.runs[(result.runs.route_split == split) & (result.runs.controller == controller)]
+    for col in ("vo_ate_m", "vo_rpe_trans_m", "vo_rpe_rot_deg", "controller_ms_median", "seconds_per_frame"):
+        vals = r[col].to_numpy(dtype=float)
+        vals = vals[np.isfinite(vals)]
+        if len(vals):
+            m[f"{col}_mean"] = float(vals.mean())
+    return m
+
+
+def log_child_runs(result, tracker) -> list[str]:
+    """One nested MLflow run per (controller, city) under the active stage run; returns their run ids."""
+    import mlflow
+
+    from expoctl.report_figures import controller_timeline
+
+    if mlflow.active_run() is None:  # a fake tracker in tests: nothing to nest under
+        return []
+    parent = mlflow.active_run().info.run_id
+    ids = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for split, ctrls in result.metrics.items():
+            city = str(result.runs[result.runs.route_split == split]["city"].iloc[0])
+            for ctrl in ctrls:
+                tags = {"stage": "evaluate", "controller": ctrl, "city": city, "route_split": split,
+                        "parent_stage_run": parent}
+                with mlflow.start_run(run_name=f"{ctrl} @ {city}", nested=True, tags=tags) as child:
+                    mlflow.log_params({"controller": ctrl, "city": city, "route_split": split})
+                    mlflow.log_metrics(child_metrics(result, split, ctrl))
+                    fig = Path(tmp) / f"timeline_{split}_{ctrl}.png"
+                    if controller_timeline(result.frames, split, ctrl, fig):
+                        mlflow.log_artifact(str(fig), artifact_path="figures")
+                    ids.append(child.info.run_id)
+    return ids
+
+
+if __name__ == "__main__":
+    stage_main("evaluate", run)
