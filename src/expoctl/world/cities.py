@@ -42,6 +42,7 @@ _TRAIN: dict[str, Any] = {
         "height_m": [4.0, 22.0],
         "kinds": {"facade_a": 0.3, "facade_b": 0.25, "wall": 0.15, "hedge": 0.15, "none": 0.15},
         "approach_m": 35.0,  # retaining walls (a cutting) this far outside each portal
+        "props_per_100m": 6.0,  # poles (most with a sign panel) per side per 100 m of open road
     },
     "tunnels": [
         {"start_m": 90.0, "length_m": 80.0, "profile": "box", "width_m": 10.0, "height_m": 5.5, "hill_height_m": 16.0},
@@ -62,6 +63,7 @@ _TRAIN: dict[str, Any] = {
     "albedo": {  # mean diffuse reflectance per material (textures modulate around it)
         "road": 0.115, "sidewalk": 0.25, "verge": 0.12, "facade_a": 0.3, "facade_b": 0.4, "wall": 0.3,
         "hedge": 0.08, "tunnel_wall": 0.35, "tunnel_ceiling": 0.07, "portal": 0.3, "hill": 0.12, "roof": 0.15,
+        "pole": 0.3, "sign": 0.5,
     },
     "textures": {"seed": 51, "photo_crop": "a", "tile_px": 1024, "texel_m": 0.01},
     "traversal": {
@@ -111,6 +113,7 @@ _TEST: dict[str, Any] = {
         "height_m": [3.0, 30.0],
         "kinds": {"facade_a": 0.2, "facade_b": 0.35, "wall": 0.2, "hedge": 0.1, "none": 0.15},
         "approach_m": 25.0,
+        "props_per_100m": 4.0,
     },
     "tunnels": [
         # a long curved tunnel on the second half of the first bend (exit-ramp-like), arch cross-section
@@ -131,6 +134,7 @@ _TEST: dict[str, Any] = {
     "albedo": {
         "road": 0.1, "sidewalk": 0.22, "verge": 0.1, "facade_a": 0.35, "facade_b": 0.28, "wall": 0.25,
         "hedge": 0.07, "tunnel_wall": 0.45, "tunnel_ceiling": 0.06, "portal": 0.25, "hill": 0.1, "roof": 0.12,
+        "pole": 0.25, "sign": 0.45,
     },
     "textures": {"seed": 977, "photo_crop": "b", "tile_px": 1024, "texel_m": 0.012},
     "traversal": {
@@ -151,7 +155,7 @@ _TEST: dict[str, Any] = {
 
 CITY_NAMES = ("train", "validation", "test")
 MATERIALS = ("road", "sidewalk", "verge", "facade_a", "facade_b", "wall", "hedge", "tunnel_wall", "tunnel_ceiling",
-             "portal", "hill", "roof")
+             "portal", "hill", "roof", "pole", "sign")
 ROADSIDE_KINDS = ("facade_a", "facade_b", "wall", "hedge", "none")
 
 
@@ -327,6 +331,7 @@ def validate_city(cfg: dict) -> None:
     if sum(kinds.values()) <= 0:
         raise ConfigError("world.city.roadside.kinds", "probabilities sum to zero")
     _num(cfg, "roadside.approach_m", lo=0.0)
+    _num(cfg, "roadside.props_per_100m", lo=0.0, hi=100.0)
 
     tunnels = _get(cfg, "tunnels")
     if not isinstance(tunnels, list):

@@ -18,7 +18,7 @@ from numba import njit, prange
 
 from expoctl.world import route as rt
 
-SKY, GROUND, SIDE, ROOF, TWALL, TCEIL, FACE, HILLTOP, FAR = 0, 1, 2, 3, 4, 5, 6, 7, 8
+SKY, GROUND, SIDE, ROOF, TWALL, TCEIL, FACE, HILLTOP, FAR, PROP = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 INF = 1.0e30
 
 # lighting parameter vector (float64) indices
@@ -81,6 +81,51 @@ def _block_entry(o_v, o_w, d_v, d_w, off, h, sign):
     if entry < min(hi_v, hi_w):
         return entry, lo_v >= lo_w
     return INF, True
+
+
+@njit(cache=True, inline="always")
+def _slab(o, d, lo, hi, tmin, tmax):
+    """Clip [tmin, tmax] to the slab lo <= o + t·d <= hi; returns (tmin, tmax, entered_here, entry_sign)."""
+    if abs(d) < 1e-12:
+        if o < lo or o > hi:
+            return 1.0, 0.0, False, 0.0
+        return tmin, tmax, False, 0.0
+    ta = (lo - o) / d
+    tb = (hi - o) / d
+    sign = -1.0
+    if ta > tb:
+        ta, tb = tb, ta
+        sign = 1.0
+    entered = False
+    if ta > tmin:
+        tmin = ta
+        entered = True
+    if tb < tmax:
+        tmax = tb
+    return tmin, tmax, entered, sign
+
+
+@njit(cache=True)
+def _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best):
+    """Entry time into box `col` of segment i (local coords) and its outward normal, or INF."""
+    tmin, tmax = t0, best
+    nu = nv = nw = 0.0
+    tmin, tmax, e, sg = _slab(ou, du, seg[i, col], seg[i, col + 1], tmin, tmax)
+    if e:
+        nu, nv, nw = sg, 0.0, 0.0
+    if tmin > tmax:
+        return INF, 0.0, 0.0, 0.0
+    tmin, tmax, e, sg = _slab(ov, dv, seg[i, col + 2], seg[i, col + 3], tmin, tmax)
+    if e:
+        nu, nv, nw = 0.0, sg, 0.0
+    if tmin > tmax:
+        return INF, 0.0, 0.0, 0.0
+    tmin, tmax, e, sg = _slab(ow, dw, seg[i, col + 4], seg[i, col + 5], tmin, tmax)
+    if e:
+        nu, nv, nw = 0.0, 0.0, sg
+    if tmin > tmax or (nu == 0.0 and nv == 0.0 and nw == 0.0):
+        return INF, 0.0, 0.0, 0.0
+    return tmin, nu, nv, nw
 
 
 @njit(cache=True)
@@ -175,6 +220,11 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop):
                         else:
                             code, nu, nv, nw = ROOF, 0.0, 0.0, 1.0
                             mat = MAT_ROOF
+            for b in range(int(seg[i, rt.N_BOXES])):
+                col = rt.BOX0 + rt.BOX_STRIDE * b
+                t, bu, bv, bw = _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best)
+                if t < best:
+                    best, code, nu, nv, nw, mat = t, PROP, bu, bv, bw, int(seg[i, col + 6])
         if code >= 0:
             return (best, code, i, i, inside, ou + best * du, ov + best * dv, ow + best * dw, nu, nv, nw, mat)
         if t_exit >= tmax:

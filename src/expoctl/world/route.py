@@ -25,7 +25,9 @@ HW, WALL_H, CROWN_H, ARC_C, ARC_R, HILL_H = 24, 25, 26, 27, 28, 29  # tunnel hal
 TUN_ID, TUN_S0, TUN_LEN = 30, 31, 32
 L_OFF, L_H, L_MAT, R_OFF, R_H, R_MAT = 33, 34, 35, 36, 37, 38  # roadside blocks: offset from centreline, height, material
 VMAX = 39  # lateral validity of this segment's slab (mitre planes of arcs converge at the circle centre)
-NCOL = 40
+BOX0, BOX_STRIDE, MAX_BOXES = 40, 7, 4  # roadside props as local axis-aligned boxes: u0, u1, v0, v1, w0, w1, material
+N_BOXES = BOX0 + BOX_STRIDE * MAX_BOXES
+NCOL = N_BOXES + 1
 
 KIND_OPEN, KIND_TUNNEL = 0.0, 1.0
 NO_BLOCK_OFFSET = 1.0e6
@@ -91,7 +93,7 @@ def _advance(x, y, psi, kappa, length):
 
 
 MATERIAL_IDS = {"road": 0, "sidewalk": 1, "verge": 2, "facade_a": 3, "facade_b": 4, "wall": 5, "hedge": 6,
-                "tunnel_wall": 7, "tunnel_ceiling": 8, "portal": 9, "hill": 10, "roof": 11}
+                "tunnel_wall": 7, "tunnel_ceiling": 8, "portal": 9, "hill": 10, "roof": 11, "pole": 12, "sign": 13}
 
 
 def _roadside_blocks(cfg: dict, route: Route, rng: np.random.Generator):
@@ -195,4 +197,34 @@ def build_segments(cfg: dict, route: Route) -> np.ndarray:
             seg[near, mat] = MATERIAL_IDS["portal"]
     for off in (L_OFF, R_OFF):  # blocks never intrude into the road + sidewalk
         seg[:, off] = np.maximum(seg[:, off], road_half + 0.5)
+    _place_props(cfg, seg, rng, road_half)
     return seg
+
+
+def _place_props(cfg: dict, seg: np.ndarray, rng: np.random.Generator, road_half: float) -> None:
+    """Poles with sign panels on the sidewalk of open segments (parallax-rich, non-periodic features)."""
+    density = float(cfg["roadside"]["props_per_100m"]) / 100.0
+    sidewalk = float(cfg["road"]["sidewalk_m"])
+    for i in range(len(seg)):
+        if seg[i, KIND] != KIND_OPEN or seg[i, LEN] < 2.0:
+            continue
+        n = 0
+        for side in (-1.0, 1.0):
+            if rng.random() >= min(1.0, density * seg[i, LEN] / 2.0) or n + 2 > MAX_BOXES:
+                continue
+            off = seg[i, L_OFF] if side < 0 else seg[i, R_OFF]
+            v = road_half + rng.uniform(0.3, max(0.4, min(sidewalk, off - road_half) - 0.3))
+            u = rng.uniform(0.5, seg[i, LEN] - 0.5)
+            h = rng.uniform(2.5, 6.0)
+            r = 0.06 if rng.random() < 0.7 else 0.12
+            col = BOX0 + BOX_STRIDE * n
+            seg[i, col:col + 7] = (u - r, u + r, side * v - r, side * v + r, 0.0, h, MATERIAL_IDS["pole"])
+            n += 1
+            if rng.random() < 0.8:  # a sign panel facing the traffic, toward the road side of the pole
+                w = rng.uniform(0.5, 1.6)
+                ph = rng.uniform(0.4, 1.2)
+                v0 = side * v - (w if side > 0 else 0.0)
+                col = BOX0 + BOX_STRIDE * n
+                seg[i, col:col + 7] = (u - r - 0.04, u - r, v0, v0 + w, h - ph, h, MATERIAL_IDS["sign"])
+                n += 1
+        seg[i, N_BOXES] = n

@@ -129,6 +129,13 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
         a, b = s_hit, w
     elif code == rc.FACE:
         a, b = v + 37.0 * seg[j, rt.S0], w
+    elif code == rc.PROP:
+        if abs(nu) > 0.5:
+            a, b = v + 37.0 * seg[j, rt.S0], w
+        elif abs(nv) > 0.5:
+            a, b = s_hit, w
+        else:
+            a, b = s_hit, v
     else:
         a, b = s_hit, v
     cos_i = abs(nx * dx + ny * dy + nz * dz)

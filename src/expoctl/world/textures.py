@@ -179,6 +179,13 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
     elif kind == "tunnel_ceiling":
         g = 1 + 0.2 * _photo("gravel", crop, n, texel_m, rng, 3.0) + 0.15 * mid + 0.3 * coarse
         _joints(g, _random_cuts(rng, n, 4.0 * m, 8.0 * m), 1, 4, 0.5)
+    elif kind == "pole":
+        g = 1 + 0.15 * fine + 0.2 * mid + 0.3 * coarse
+        _joints(g, _random_cuts(rng, n, 0.3 * m, 2.0 * m), 0, 2, 0.6)  # bands, clamps, stickers
+    elif kind == "sign":
+        g = np.repeat((1 + 0.05 * fine + 0.1 * coarse)[:, :, None], 3, axis=2)
+        _rects(rng, g, int((n / m) ** 2 / 1.5), (0.3 * m, 1.6 * m), (0.3 * m, 1.2 * m), (0, n), _poster(rng, True))
+        return np.clip(g / g.mean(), 0.05, 4.0).astype(np.float32)
     elif kind == "portal":
         g = 1 + 0.2 * _photo("gravel", crop, n, texel_m, rng, 5.0) + 0.12 * mid + 0.25 * coarse
         _joints(g, _random_cuts(rng, n, 1.5 * m, 3.5 * m), 1, 3, 0.5)
