@@ -279,6 +279,18 @@ def compute_features(
     return features, matches
 
 
+def _pool_context():
+    """forkserver where the OS has it, else spawn. Never plain fork: forking a process whose other threads (OpenCV's
+    pool, numba, tqdm's monitor) hold a lock leaves the child waiting on that lock forever (seen: workers stuck in
+    futex_wait). The fork server is a fresh single-threaded process that imports this module once; workers fork from
+    it, so they start in milliseconds instead of re-importing cv2/numba/pandas like spawned ones."""
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload([__name__])
+        return ctx
+    return multiprocessing.get_context("spawn")
+
+
 def _run_tasks(tasks: list[_SequenceTask], n_jobs: int, progress: bool) -> list[tuple[list, list]]:
     """Run the per-sequence tasks (in order of the task list in the result), with a progress bar over images."""
     from tqdm import tqdm
@@ -291,10 +303,7 @@ def _run_tasks(tasks: list[_SequenceTask], n_jobs: int, progress: bool) -> list[
                 results[i] = _process_sequence(task)
                 bar.update(len(task.paths))
             return results  # type: ignore[return-value]
-        # fork where the OS has it: workers inherit the imported modules and numba's compiled matcher instead of
-        # re-importing them (seconds per worker on a busy machine). OpenCV re-creates its thread pool after fork, and
-        # the workers use no OpenMP/torch, so nothing inherited can deadlock. Elsewhere, spawn.
-        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+        ctx = _pool_context()
         with cf.ProcessPoolExecutor(max_workers=min(n_jobs, len(tasks)), mp_context=ctx,
                                     initializer=_worker_init) as pool:
             futures = {pool.submit(_process_sequence, task): i for i, task in enumerate(tasks)}
