@@ -118,15 +118,18 @@ def test_parity_with_the_original(ref):
     assert {k: got[k] for k in exact} == {k: ref[k] for k in exact}
     # Delaunay ties (co-circular points on the even lattice) are broken differently by Qhull and Triangle: 0.5 %,
     # with an allowance of 2 matches for pairs whose final count is tiny
-    assert abs(got["n_sparse_after_outliers"] - ref["n_sparse_after_outliers"]) <= max(0.005 * ref["n_sparse_after_outliers"], 2)
-    assert abs(got["n_raw_matches"] - ref["n_raw_matches"]) <= max(0.005 * ref["n_raw_matches"], 2)
-    assert abs(got["n_bucketed"] - ref["n_bucketed"]) <= max(0.005 * ref["n_bucketed"], 2)
+    for key in ("n_sparse_after_outliers", "n_raw_matches", "n_bucketed"):
+        assert abs(got[key] - ref[key]) <= max(0.005 * ref[key], 2), key
     # count C depends on RANSAC sampling: compare the mean over 5 seeds (absolute allowance 3 for tiny counts)
     p = parse_params(None)
     matches, _ = match_matches(prev, cur, p)
     assert len(matches) == got["n_raw_matches"]
     c_mean = np.mean([ransac_inlier_count(matches, p.ransac_iters, p.inlier_threshold, s) for s in range(5)])
     assert abs(c_mean - ref["n_inliers_nobucket"]) <= max(0.05 * ref["n_inliers_nobucket"], 3)
+    # count B (bucketed): the reference is one draw of the original's own spread (basketball: 97–111 over 10
+    # seeds, reference 99), so its mean is compared within 10 %
+    b_mean = np.mean([pair_counts(prev, cur, seed=s).n_inliers for s in range(5)])
+    assert abs(b_mean - ref["n_inliers"]) <= max(0.10 * ref["n_inliers"], 3)
 
 
 @pytest.mark.parametrize(

@@ -5,6 +5,7 @@ import pytest
 
 from expoctl.features.viso_ransac import (
     bucket,
+    draw_samples,
     fundamental_8point,
     hartley_normalise,
     ransac_fundamental,
@@ -78,7 +79,7 @@ def test_ransac_recovers_a_known_f_and_its_inliers():
 
 
 def test_ransac_is_deterministic_per_seed_and_needs_10_matches():
-    m, _ = _scene(30, 30, seed=4)
+    m, _ = _scene(30, 5, seed=4)  # 8 inliers are drawn with probability 0.29 per iteration
     assert ransac_inlier_count(m, 200, 1e-5, 7) == ransac_inlier_count(m, 200, 1e-5, 7)
     assert ransac_inlier_count(m, 200, 1e-5, -7) >= 30  # any int is a valid seed
     assert ransac_inlier_count(m[:9], 2000, 1e-5, 0) == 0
@@ -98,3 +99,13 @@ def test_bucketing_keeps_at_most_k_per_cell():
     kept_cells = (a[:, 3] // 50) * 100 + a[:, 2] // 50
     assert np.unique(kept_cells, return_counts=True)[1].max() <= 2
     assert {tuple(r) for r in a.tolist()} <= {tuple(r) for r in m.tolist()}  # … drawn from the input
+
+
+@pytest.mark.parametrize("n", [8, 10, 40, 65, 1000])
+def test_samples_are_8_distinct_indices(n):
+    idx = draw_samples(n, 500, np.random.default_rng(0))
+    assert idx.shape == (500, 8) and idx.min() >= 0 and idx.max() < n
+    assert all(len(set(row)) == 8 for row in idx.tolist())
+    if n >= 40:  # roughly uniform use of the indices
+        use = np.bincount(idx.ravel(), minlength=n)
+        assert use.min() >= 0 and use.max() < 8 * 500 / n * 3 + 10

@@ -10,7 +10,7 @@ default) or on the bucketed matches (count B, `bucketing: true`).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from time import perf_counter
+from time import perf_counter, process_time
 
 import numpy as np
 
@@ -58,16 +58,18 @@ class VisoCounts:
 
 
 class _Laps:
-    """Accumulates wall time per pipeline stage into an optional dict (for benchmarks/viso_speed.py)."""
+    """Accumulates seconds per pipeline stage into an optional dict (for benchmarks/viso_speed.py): wall time under
+    the stage's name and process CPU time under "<stage>:cpu" (robust to other processes on a shared machine)."""
 
     def __init__(self, timings: dict[str, float] | None):
         self.timings = timings
-        self.last = perf_counter()
+        self.last = (perf_counter(), process_time())
 
     def lap(self, stage: str) -> None:
-        now = perf_counter()
+        now = (perf_counter(), process_time())
         if self.timings is not None:
-            self.timings[stage] = self.timings.get(stage, 0.0) + (now - self.last)
+            self.timings[stage] = self.timings.get(stage, 0.0) + (now[0] - self.last[0])
+            self.timings[stage + ":cpu"] = self.timings.get(stage + ":cpu", 0.0) + (now[1] - self.last[1])
         self.last = now
 
 
@@ -78,7 +80,8 @@ def _check_grey(grey: np.ndarray) -> None:
 
 
 def extract_features(grey: np.ndarray, p: VisoParams, timings: dict[str, float] | None = None) -> VisoFeatures:
-    """Detect and describe features. timings, if given, accumulates seconds per stage (filters, nms, descriptors)."""
+    """Detect and describe features. timings, if given, accumulates seconds per stage (filters, nms, descriptors;
+    see _Laps)."""
     _check_grey(grey)
     laps = _Laps(timings)
     height, width = grey.shape
