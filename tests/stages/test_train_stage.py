@@ -106,3 +106,27 @@ def test_torchrun_two_cpu_processes(tmp_path):
     for k in s0:  # DDP keeps the replicas identical (BN buffers broadcast from rank 0)
         assert torch.equal(s0[k], s1[k]), k
         assert torch.equal(s0[k], ckpt_model.state_dict()[k]), k
+
+
+@pytest.mark.slow
+def test_stage_entry_point_unchanged_under_torchrun(tmp_path):
+    """`torchrun --nproc_per_node 2 -m stages.train` in a throw-away project: rank 0 logs one run and writes."""
+    import shutil
+
+    proj = tmp_path / "proj"
+    shutil.copytree(ROOT / "stages", proj / "stages", ignore=shutil.ignore_patterns("__pycache__"))
+    cfg = make_cfg(tmp_path, epochs=2)
+    (proj / "configs").mkdir()
+    (proj / "configs" / "resolved.yaml").write_text(yaml.safe_dump(cfg))
+    env = {**os.environ, "PYTHONPATH": str(proj), "OMP_NUM_THREADS": "1"}
+    env.pop("MLFLOW_TRACKING_URI", None)  # the embedded store of the throw-away project
+    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                        "-m", "stages.train"], cwd=proj, env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    _, ckpt = load_checkpoint(tmp_path / "models" / "controller.pt")
+    assert ckpt["metrics"]["n_processes"] == 2
+    client = mlflow.tracking.MlflowClient(f"sqlite:///{proj / 'mlflow.db'}")
+    exp = client.get_experiment_by_name("expoctl")
+    runs = client.search_runs([exp.experiment_id])
+    assert [r.data.tags["stage"] for r in runs] == ["train"]  # one run, from rank 0 only
+    assert runs[0].data.metrics["final.n_processes"] == 2
