@@ -46,12 +46,14 @@ class Renderer:
 
     width, height: pixels; hfov_deg: horizontal field of view; glare_fraction: share of image luminance scattered
     by the lens into a wide halo (veiling glare, 0.1–1 %); mip_bias: texture footprint multiplier (>1 blurs more,
-    <1 sharper but aliasing); blur: 'fast' or 'reference'.
+    <1 sharper but aliasing); blur: 'fast' or 'reference'; share_render: in the fast path, one sharp render per
+    frame serves both cameras and all exposures (warped by depth-based flow): about half the cost of a stereo
+    rig, but the resampling softens the warped camera relative to the rendered one, so it is off by default.
     """
 
     def __init__(self, city: City, width: int = 640, height: int = 480, hfov_deg: float = 70.0,
                  glare_fraction: float = 0.005, mip_bias: float = 1.0, tmax_m: float = 400.0, blur: str = "fast",
-                 max_subframes: int = 48, conditions: Conditions | None = None):
+                 max_subframes: int = 48, share_render: bool = False, conditions: Conditions | None = None):
         self.K = intrinsics(width, height, hfov_deg)
         if not 0.0 <= glare_fraction <= 0.05:
             raise ConfigError("world.render.glare_fraction", f"must be in [0, 0.05], got {glare_fraction}")
@@ -63,6 +65,7 @@ class Renderer:
             raise ConfigError("world.render.max_subframes", f"must be an integer >= 1, got {max_subframes!r}")
         self.city, self.width, self.height, self.hfov_deg = city, int(width), int(height), float(hfov_deg)
         self.glare_fraction, self.blur, self.max_subframes = float(glare_fraction), blur, max_subframes
+        self.share_render = bool(share_render)
         self.seg = np.ascontiguousarray(city.segments)
         self.texels, self.offs, self.sizes, self.scales = city.texture_atlas()
         cfg = city.cfg
@@ -75,7 +78,8 @@ class Renderer:
     @classmethod
     def from_config(cls, city: City, render_cfg: dict, conditions: Conditions | None = None) -> "Renderer":
         """Build from the `world.render` config group (keys as in conf/world/default.yaml); unknown keys are errors."""
-        allowed = {"width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes"}
+        allowed = {"width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes",
+                   "share_render"}
         if not isinstance(render_cfg, dict):
             raise ConfigError("world.render", "must be a mapping")
         for key in render_cfg:
@@ -255,21 +259,25 @@ class Renderer:
                 pose = self._offset_pose(trajectory.pose_at(t0 + (k + 0.5) * dur / n), camera_offset_m)
                 acc += self.render_full(pose, glare=False)["luminance"]
             return self.apply_glare((acc / n).astype(np.float32))
-        # render once at mid-exposure and smear each pixel along its flow to the exposure's start and end poses.
-        # The sharp render is cached per (trajectory, frame, camera, exposure) so a camera's repeated calls are free.
-        key = (id(trajectory), frame_index, float(camera_offset_m), float(exposure_us))
-        mid = self._offset_pose(trajectory.pose_at(t0 + 0.5 * dur), camera_offset_m)
+        # Render once at mid-exposure and smear each pixel along its flow to the exposure's start and end poses.
+        # With share_render (optional) one sharp render per frame serves both cameras and every exposure: the flow
+        # from the cached render's pose to this camera's start/end poses also carries the 3.92 cm stereo parallax.
+        key = (id(trajectory), frame_index) if self.share_render else (
+            id(trajectory), frame_index, float(camera_offset_m), float(exposure_us))
         if key not in self._cache:
             if len(self._cache) > 8:
                 self._cache.clear()
-            self._cache[key] = self.render_full(mid, glare=False)
+            ref = self._offset_pose(trajectory.pose_at(t0 + 0.5 * dur), camera_offset_m)
+            self._cache[key] = dict(self.render_full(ref, glare=False), pose=ref)
         sharp = self._cache[key]
-        flow_a, flow_b = self._flow(sharp["depth"], mid, self._offset_pose(trajectory.pose_at(t0), camera_offset_m),
+        flow_a, flow_b = self._flow(sharp["depth"], sharp["pose"],
+                                    self._offset_pose(trajectory.pose_at(t0), camera_offset_m),
                                     self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m))
         max_flow = float(np.max(np.hypot(flow_b[..., 0] - flow_a[..., 0], flow_b[..., 1] - flow_a[..., 1])))
-        if max_flow < 0.5:
+        max_shift = float(max(np.abs(flow_a).max(), np.abs(flow_b).max()))
+        if max_shift < 0.5:
             return self.apply_glare(sharp["luminance"])
-        n = int(min(64, math.ceil(2 * max_flow) + 1))
+        n = int(min(64, math.ceil(2 * max_flow) + 1)) if max_flow >= 0.5 else 1
         out = np.empty_like(sharp["luminance"])
         _smear(sharp["luminance"], flow_a.astype(np.float32), flow_b.astype(np.float32), n, out)
         return self.apply_glare(out)
