@@ -43,3 +43,77 @@ def moving_scene(level_cd_m2, width: int = 160, height: int = 120, step_px: int 
         return np.repeat(crop[..., None], 3, axis=2).astype(np.float32)
 
     return FunctionScene(lum, fps)
+
+
+# ---------------------------------------------------------------------------------------------- fixture-scale project
+
+REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
+    """A tiny evaluation project under `root`: train-split frames (PNGs + frames.parquet) for SumLog tuning, a small
+    untrained learned-controller checkpoint, and a resolved config at fixture scale (96×72 renders, 256 px texture
+    tiles, short portal windows with short dynamic spans). Returns the config dict."""
+    from pathlib import Path
+
+    import pandas as pd
+    import torch
+
+    from expoctl.io import write_png
+    from expoctl.model import ExposureNet, ModelConfig
+    from expoctl.train import TrainConfig, TrainResult, checkpoint_dict
+
+    root = Path(root)
+    rows = []
+    tex = texture(72, 140, seed=3)
+    for k in range(4):
+        img = np.clip(tex[:, k * 4:k * 4 + 96] * 110, 0, 255).astype(np.uint8)
+        p = f"data/raw/train/s0/cam1/{k:06d}.png"
+        write_png(np.repeat(img[..., None], 3, axis=2), root / p)
+        rows.append({"sequence": "s0", "frame_id": k, "camera": 1, "timestamp_ns": k, "gain_db": 0.0,
+                     "exposure_us": 1000.0, "image_path": p, "split": "train", "section": "static", "image_index": k})
+    (root / "data").mkdir(exist_ok=True)
+    pd.DataFrame(rows).to_parquet(root / "data/frames.parquet", index=False)
+    mcfg = ModelConfig.from_dict({"input_size": 32, "conv_widths": [4, 4, 8, 8], "conv_kernels": [3, 3, 3],
+                                  "pool": 2, "fc_widths": [8, 8, 8], "dropout": 0.0})
+    torch.manual_seed(0)
+    ckpt = checkpoint_dict(TrainResult(ExposureNet(mcfg).eval(), 0, 0, [], {}), mcfg, TrainConfig(), (48, 64), 0)
+    (root / "models").mkdir(exist_ok=True)
+    torch.save(ckpt, root / "models/controller.pt")
+    short = {"dynamic_before_s": 0.3, "dynamic_after_s": 0.3}
+    city = lambda base: {"base": base, "textures": {"tile_px": 256}, "traversal": short}  # noqa: E731
+    window = {"window": "portal", "before_s": 0.6, "after_s": 0.6, "windows": [1]}
+    return {
+        "seed": 0,
+        "scale_name": "fixture",
+        "sensor": {},
+        "rig": {},
+        "world": {"cities": {"validation": city("validation"), "test": city("test")},
+                  "city_dir": str(REPO / "conf/world/cities"), "render": {"width": 96, "height": 72, "hfov_deg": 70.0}},
+        "controllers": {"fixed": {"mode": "manual", "gain_db": 0.0, "exposure_us": 2000.0},
+                        "oracle": {"exposures_us": [30000.0, 3750.0, 469.0, 117.0], "gains_db": [12.0, 24.0],
+                                   "match_width": 96, "match_nfeatures": 300}},
+        "features": {"orb": {"working_size": None, "count_nfeatures": 500, "match_nfeatures": 500},
+                     "sumlog": {"alphas": [[0.333333, 0.333333, 0.333334], [0.0, 1.0, 0.0]], "betas": [2.0, 8.0],
+                                "max_pairs": 3}},
+        "evaluate": {"controllers": list(controllers or ("agae", "shin", "shim", "mean_intensity", "fixed", "learned",
+                                                         "oracle")),
+                     "splits": {"validation": window, "test": window}, "warmup_frames": 2, "sumlog_pairs": 3,
+                     "min_section_frames": 3, "vo": {"min_inliers": 8, "n_features": 500}, "thumb_width": 48,
+                     "thumb_span_s": 1.0, "n_jobs": n_jobs},
+        "report": {"strip_split": "test", "strip_portal": "exit", "strip_columns": 4},
+        "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt", "reports_dir": "reports"},
+    }
+
+
+def use_real_or_test_sensor(monkeypatch) -> str:
+    """The simulator's sensor when it exists; until `expoctl.camera.sensor` lands, a `LinearSensor` stand-in."""
+    try:
+        import expoctl.camera.sensor  # noqa: F401
+
+        return "real"
+    except ImportError:
+        import expoctl.rig.closed_loop as cl
+
+        monkeypatch.setattr(cl, "make_sensors", lambda cfg, render, n, amp, seed: ([LinearSensor(2.0)] * n, {}))
+        return "linear stand-in"

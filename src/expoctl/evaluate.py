@@ -215,8 +215,8 @@ def _controller_params(cfg: dict, name: str) -> dict:
 
 def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     """Render and evaluate one run (runs in a worker process)."""
-    import expoctl.controllers.learned  # noqa: F401  (registers "learned")
     import expoctl.controllers.oracle as oracle_mod
+    from expoctl.controllers.learned import register_learned
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
     from expoctl.evaluate_run import WindowFrames, drive_window
@@ -225,6 +225,8 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     from expoctl.rig.collect import _load_city_cached
     from expoctl.vo import intrinsics_matrix
 
+    register_learned()
+    oracle_mod.register_oracle()
     cfg, w = job.cfg, job.window
     ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
     fcfg = FeaturesConfig.from_dict(cfg.get("features"))

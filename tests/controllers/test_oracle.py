@@ -31,10 +31,17 @@ def test_bad_config_names_the_key(bad):
 
 
 def test_registry_refuses_an_oracle_without_the_simulator():
-    import expoctl.controllers.oracle  # noqa: F401  (registers itself)
+    from expoctl.controllers import registry
+    from expoctl.controllers.oracle import register_oracle
 
-    with pytest.raises(ConfigError, match="simulator"):
-        make_controller("oracle", {})
+    saved = dict(registry.CONTROLLERS)
+    try:
+        register_oracle()
+        with pytest.raises(ConfigError, match="simulator"):
+            make_controller("oracle", {})
+    finally:
+        registry.CONTROLLERS.clear()
+        registry.CONTROLLERS.update(saved)
 
 
 def _loop(level, frames, warmup, noise_dn=2.0, seed=5):

@@ -201,10 +201,9 @@ def _factory(params: dict) -> Controller:
     return make_oracle(params, rt["scene"], rt["sensor"], rt["seed"], rt["n_frames"], rt.get("first_frame", 0))
 
 
-def _register() -> None:
+def register_oracle() -> None:
+    """Add "oracle" to `expoctl.controllers.registry` (explicit, like `register_learned`: it cannot be built from
+    its YAML section alone)."""
     from expoctl.controllers.registry import register
 
     register("oracle", _factory)
-
-
-_register()
