@@ -3,8 +3,8 @@
 1. ms per 640×480 pair (extract both images + match + verify) for each front end that imports (orb; viso), on two
    realistic pairs: the Middlebury motorcycle stereo pair (real parallax) and the coffee photo under a small
    rotation/zoom/shift (a camera turning). Median of repeated runs.
-2. images/s of compute_features on a small generated set (two sequences panning over the motorcycle photo, both
-   cameras, 640×480), in-process (n_jobs=1) and with the process pool (n_jobs=2).
+2. images/s of compute_features on a small generated set (two sequences of 12 frames panning over the motorcycle
+   photo, both cameras, 640×480), in-process (n_jobs=1) and with the process pool (n_jobs=2, cold then warm).
 
 Run: .venv/bin/python benchmarks/features_speed.py [--repeats 7]
 Writes benchmarks/results/features_speed.json. The machine is shared: load average is recorded with the numbers.
@@ -16,6 +16,7 @@ import argparse
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -72,7 +73,7 @@ def time_pairs(frontends, pairs, repeats) -> list[dict]:
     return rows
 
 
-def generated_project(root: Path, n_sequences=2, n_frames=5) -> pd.DataFrame:
+def generated_project(root: Path, n_sequences=2, n_frames=12) -> pd.DataFrame:
     left, _, _ = skimage.data.stereo_motorcycle()
     big = cv2.resize(left, (int(741 * 1.3), int(500 * 1.3)), interpolation=cv2.INTER_LINEAR)  # 963×650
     rows = []
@@ -93,15 +94,23 @@ def time_compute_features(frontends, n_jobs_list) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         frames = generated_project(Path(tmp))
         for fronts in ([["orb"]] + ([frontends] if len(frontends) > 1 else [])):
-            for n_jobs in n_jobs_list:
+            for run, n_jobs in enumerate(n_jobs_list):
                 params = {"frontends": fronts, "n_jobs": n_jobs}
                 t0 = time.perf_counter()
                 feats, matches = compute_features(frames, tmp, params, progress=False)
                 seconds = time.perf_counter() - t0
-                rows.append({"frontends": "+".join(fronts), "n_jobs": n_jobs, "n_images": len(frames),
+                rows.append({"frontends": "+".join(fronts), "n_jobs": n_jobs, "run": run, "n_images": len(frames),
                              "n_pair_rows": len(matches), "seconds": seconds, "images_per_s": len(frames) / seconds,
                              "median_n_inliers": float(matches.n_inliers.median())})
     return rows
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                              text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
 
 
 def main() -> None:
@@ -111,7 +120,8 @@ def main() -> None:
     frontends = available_frontends()
     load_before = os.getloadavg()
     pair_rows = time_pairs(frontends, realistic_pairs(), args.repeats)
-    cf_rows = time_compute_features(frontends, [1, 2])
+    # n_jobs=2 twice: the first pays the pool start (fork server, numba init per worker), the second runs warm
+    cf_rows = time_compute_features(frontends, [1, 2, 2])
     load_after = os.getloadavg()
 
     print(f"\nms per {W}×{H} pair (extract both + match + F-RANSAC), median of {args.repeats}")
@@ -119,15 +129,15 @@ def main() -> None:
     for r in pair_rows:
         print(f"{r['frontend']:<9}{r['pair']:<20}{r['ms_per_pair_median']:>10.1f}{r['ms_per_pair_min']:>9.1f}"
               f"{r['n_features_prev']:>10}{r['n_matches']:>9}{r['n_inliers']:>9}")
-    print(f"\ncompute_features on {cf_rows[0]['n_images']} generated {W}×{H} images (2 sequences × 5 frames × 2 cameras)")
-    print(f"{'frontends':<12}{'n_jobs':>7}{'seconds':>9}{'images/s':>10}{'median inliers':>16}")
+    print(f"\ncompute_features on {cf_rows[0]['n_images']} generated {W}×{H} images (2 sequences × 12 frames × 2 cameras)")
+    print(f"{'frontends':<12}{'n_jobs':>7}{'run':>4}{'seconds':>9}{'images/s':>10}{'median inliers':>16}")
     for r in cf_rows:
-        print(f"{r['frontends']:<12}{r['n_jobs']:>7}{r['seconds']:>9.2f}{r['images_per_s']:>10.2f}"
+        print(f"{r['frontends']:<12}{r['n_jobs']:>7}{r['run']:>4}{r['seconds']:>9.2f}{r['images_per_s']:>10.2f}"
               f"{r['median_n_inliers']:>16.0f}")
     print(f"\nload average before/after: {load_before[0]:.2f} / {load_after[0]:.2f} on {os.cpu_count()} cores")
     write_json({"pairs": pair_rows, "compute_features": cf_rows, "image_size": [W, H],
                 "load_average_1min": [load_before[0], load_after[0]], "cpu_count": os.cpu_count(),
-                "python": platform.python_version(), "opencv": cv2.__version__}, RESULTS)
+                "python": platform.python_version(), "opencv": cv2.__version__, "git_commit": _git_commit()}, RESULTS)
     print(f"wrote {RESULTS}")
 
 
