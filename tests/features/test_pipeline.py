@@ -176,6 +176,8 @@ def test_gap_in_frame_ids(tmp_path):
         (lambda f: f.iloc[:0], "no rows"),
         (lambda f: pd.concat([f, f.iloc[:1]]), "appears twice"),
         (lambda f: f.assign(camera=f.camera.replace(2, 3)), "camera must be 1 or 2"),
+        (lambda f: f.assign(frame_id=[0, 0.5]), "row 1: column frame_id must be an integer"),
+        (lambda f: f.assign(image_path=["a", None]), "row 1: column image_path is empty"),
     ],
 )
 def test_bad_frames_table(tmp_path, mutate, message):

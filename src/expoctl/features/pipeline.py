@@ -151,6 +151,10 @@ def _plan(frames_df: pd.DataFrame, project_root: Path, cfg: FeaturesConfig) -> l
     if frames_df.empty:
         raise InputError("frames table: no rows (nothing to compute features for)")
     df = frames_df.loc[:, list(FRAMES_COLUMNS)].copy()
+    for col in FRAMES_COLUMNS:
+        empty = df[col].isna()
+        if empty.any():
+            raise InputError(f"frames table row {df.index[empty.to_numpy()][0]}: column {col} is empty")
     for col in ("frame_id", "camera"):
         values = pd.to_numeric(df[col], errors="coerce")
         bad = values.isna() | (values != np.floor(values))
