@@ -74,10 +74,11 @@ def assemble_input(frames_uint8: torch.Tensor, gain_norm: torch.Tensor, exposure
     if frames_uint8.dtype != torch.uint8 or frames_uint8.ndim != 5 or frames_uint8.shape[1:3] != (N_FRAMES, 3):
         raise ValueError(f"frames must be uint8 (B, 3, 3, h, w), got {tuple(frames_uint8.shape)} {frames_uint8.dtype}")
     b, _, _, h, w = frames_uint8.shape
-    rgb = frames_uint8.to(torch.float32) / 255.0
-    planes = torch.stack([gain_norm, exposure_norm], dim=2).to(torch.float32)  # (B, 3, 2)
-    planes = planes[:, :, :, None, None].expand(b, N_FRAMES, 2, h, w)
-    return torch.cat([rgb, planes], dim=2).reshape(b, N_INPUT_CHANNELS, h, w)
+    out = torch.empty((b, N_FRAMES, CHANNELS_PER_FRAME, h, w), dtype=torch.float32)
+    torch.div(frames_uint8, 255.0, out=out[:, :, :3])  # written in place: no concatenation copy of a large batch
+    out[:, :, 3] = gain_norm.to(torch.float32)[:, :, None, None]
+    out[:, :, 4] = exposure_norm.to(torch.float32)[:, :, None, None]
+    return out.view(b, N_INPUT_CHANNELS, h, w)
 
 
 def stack_frames(frames_hwc: Sequence[np.ndarray]) -> torch.Tensor:
