@@ -1,0 +1,287 @@
+"""EMVA-1288 linear camera model (Sony IMX265-class global-shutter CMOS, as in the FLIR Blackfly S BFS-U3-31S4C).
+
+Scene luminance L (cd/m², per RGB channel) → image-plane illuminance E = π·L·T/(4·N²) (lux) → mean photons per
+pixel μp = E·A·t / (h·c/λ · 683 lm/W) → electrons ~ Poisson(η·μp·(1 + PRNU)) + DSNU → charge clipped at the full
+well → + read noise → DN = K(g)·e⁻ + black level, with K(g) = K₀·10^(g/20) → quantised and clipped to the ADC range.
+
+Gain multiplies *after* the charge is collected and *before* the ADC clips, so it amplifies shot and read noise with
+the signal and the saturation level in electrons falls as 1/gain: gain and exposure are not interchangeable
+(exposure adds motion blur, gain adds noise and loses range). Check of the constants: on a 3.45 µm pixel at 555 nm,
+1 lux·s gives ≈ 48.7k photons.
+
+Shot noise: exact Poisson draws where the mean is below `poisson_exact_below` electrons (default 10), a Gaussian with
+the same mean and variance above it (mean and variance exact; only the skewness 1/√μ ≤ 0.32 is lost), which is several
+times faster than Poisson sampling of a whole frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.camera.response import Response
+from expoctl.errors import ConfigError, InputError
+
+PLANCK_J_S = 6.62607015e-34
+LIGHT_SPEED_M_S = 2.99792458e8
+LUMENS_PER_WATT_555NM = 683.0
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    quantum_efficiency: float = 0.6      # η at 555 nm
+    full_well_e: float = 10500.0         # saturation capacity, electrons
+    read_noise_e: float = 2.8            # temporal dark noise σ_d, electrons (≈ 71 dB single-frame range)
+    prnu: float = 0.005                  # photo-response non-uniformity (σ of the gain map, fraction)
+    dsnu_e: float = 1.0                  # dark-signal non-uniformity (σ of the offset map, electrons)
+    adc_bits: int = 12
+    system_gain_dn_per_e: float | None = None  # K at 0 dB; None = (2^bits − 1) / full well (full well fills the ADC)
+    black_level_fraction: float = 0.015  # black level offset as a fraction of the ADC range
+    f_number: float = 2.0
+    lens_transmission: float = 0.9
+    pixel_pitch_um: float = 3.45
+    wavelength_nm: float = 555.0
+    response_curve: str = "srgb"         # srgb | gamma | linear (expoctl.camera.response)
+    response_gamma: float = 2.2          # only for response_curve: gamma
+    poisson_exact_below: float = 10.0    # electrons; Gaussian shot-noise approximation above
+
+    _POSITIVE = ("quantum_efficiency", "full_well_e", "f_number", "lens_transmission", "pixel_pitch_um",
+                 "wavelength_nm", "response_gamma")
+    _NON_NEGATIVE = ("read_noise_e", "prnu", "dsnu_e", "black_level_fraction", "poisson_exact_below")
+
+    @classmethod
+    def from_dict(cls, d: dict | None, key: str = "sensor") -> "SensorConfig":
+        d = dict(d or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        for k in d:
+            if k not in known:
+                raise ConfigError(f"{key}.{k}", f"unknown key (known: {sorted(known)})")
+        try:
+            cfg = cls(**d)
+            cfg.validate(key)
+        except TypeError as exc:
+            raise ConfigError(key, str(exc)) from None
+        return cfg
+
+    def validate(self, key: str = "sensor") -> None:
+        for name in self._POSITIVE:
+            v = getattr(self, name)
+            if not _finite_number(v) or v <= 0:
+                raise ConfigError(f"{key}.{name}", f"must be a positive number, got {v!r}")
+        for name in self._NON_NEGATIVE:
+            v = getattr(self, name)
+            if not _finite_number(v) or v < 0:
+                raise ConfigError(f"{key}.{name}", f"must be a non-negative number, got {v!r}")
+        if not 0 < self.quantum_efficiency <= 1:
+            raise ConfigError(f"{key}.quantum_efficiency", f"must be in (0, 1], got {self.quantum_efficiency}")
+        if not 0 < self.lens_transmission <= 1:
+            raise ConfigError(f"{key}.lens_transmission", f"must be in (0, 1], got {self.lens_transmission}")
+        if not (isinstance(self.adc_bits, int) and 8 <= self.adc_bits <= 16):
+            raise ConfigError(f"{key}.adc_bits", f"must be an integer in 8…16, got {self.adc_bits!r}")
+        if self.system_gain_dn_per_e is not None and (
+                not _finite_number(self.system_gain_dn_per_e) or self.system_gain_dn_per_e <= 0):
+            raise ConfigError(f"{key}.system_gain_dn_per_e", f"must be positive or null, got {self.system_gain_dn_per_e!r}")
+        if self.black_level_fraction >= 0.5:
+            raise ConfigError(f"{key}.black_level_fraction", f"must be below 0.5, got {self.black_level_fraction}")
+        if self.prnu >= 0.5:
+            raise ConfigError(f"{key}.prnu", f"must be below 0.5, got {self.prnu}")
+        if self.response_curve not in ("srgb", "gamma", "linear"):
+            raise ConfigError(f"{key}.response_curve", f"must be srgb, gamma or linear, got {self.response_curve!r}")
+
+    @property
+    def adc_max_dn(self) -> int:
+        return (1 << self.adc_bits) - 1
+
+    @property
+    def k0_dn_per_e(self) -> float:
+        return self.system_gain_dn_per_e if self.system_gain_dn_per_e is not None else self.adc_max_dn / self.full_well_e
+
+    @property
+    def black_level_dn(self) -> float:
+        return self.black_level_fraction * self.adc_max_dn
+
+    def photons_per_cd_m2_s(self) -> float:
+        """Mean photons per pixel per second for a scene luminance of 1 cd/m² (through the lens)."""
+        illuminance_lux = math.pi * self.lens_transmission / (4.0 * self.f_number ** 2)
+        area_m2 = (self.pixel_pitch_um * 1e-6) ** 2
+        photon_energy_j = PLANCK_J_S * LIGHT_SPEED_M_S / (self.wavelength_nm * 1e-9)
+        return illuminance_lux * area_m2 / (LUMENS_PER_WATT_555NM * photon_energy_j)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def randomised(self, rng: np.random.Generator, amplitude: float) -> "SensorConfig":
+        """A unit-to-unit variation: η, full well, read noise, PRNU, DSNU and black level each × (1 ± U[0, amplitude])."""
+        if not 0 <= amplitude < 0.5:
+            raise ConfigError("sensor randomisation amplitude", f"must be in [0, 0.5), got {amplitude}")
+
+        def jitter(v: float) -> float:
+            return float(v * (1.0 + rng.uniform(-amplitude, amplitude)))
+
+        return dataclasses.replace(
+            self,
+            quantum_efficiency=min(1.0, jitter(self.quantum_efficiency)),
+            full_well_e=jitter(self.full_well_e),
+            read_noise_e=jitter(self.read_noise_e),
+            prnu=jitter(self.prnu),
+            dsnu_e=jitter(self.dsnu_e),
+            black_level_fraction=jitter(self.black_level_fraction),
+        )
+
+
+class Sensor:
+    """One camera unit: a config plus its own fixed-pattern noise (PRNU and DSNU maps drawn from `seed`)."""
+
+    def __init__(self, cfg: SensorConfig, height: int, width: int, seed: int = 0):
+        cfg.validate()
+        self.cfg = cfg
+        self.height, self.width = int(height), int(width)
+        fpn = np.random.default_rng(np.random.SeedSequence([int(seed), 0xF9]))
+        shape = (self.height, self.width, 3)
+        self._gain_map = (1.0 + cfg.prnu * fpn.standard_normal(shape)).astype(np.float32)
+        self._dark_map = (cfg.dsnu_e * fpn.standard_normal(shape)).astype(np.float32)
+        self._photons_per_cd_m2_us = np.float32(cfg.photons_per_cd_m2_s() * 1e-6)
+        self.response = Response(cfg.response_curve, cfg.response_gamma)
+        codes = np.arange(cfg.adc_max_dn + 1, dtype=np.float64)
+        linear = (codes - cfg.black_level_dn) / (cfg.adc_max_dn - cfg.black_level_dn)
+        self._dn_to_8bit = self.response.linear_to_8bit(linear)
+
+    def mean_electrons(self, luminance_cd_m2: np.ndarray, exposure_us: float) -> np.ndarray:
+        """Expected collected electrons per pixel (before shot noise and clipping)."""
+        lum = np.asarray(luminance_cd_m2, dtype=np.float32)
+        mu = lum * (self._photons_per_cd_m2_us * np.float32(exposure_us * self.cfg.quantum_efficiency))
+        mu *= self._gain_map
+        mu += self._dark_map
+        np.maximum(mu, 0.0, out=mu)
+        return mu
+
+    def capture_raw(self, luminance_cd_m2: np.ndarray, exposure_us: float, gain_db: float,
+                    rng: np.random.Generator) -> np.ndarray:
+        """Linear raw frame in DN (float32, quantised, black level included, clipped to the ADC range)."""
+        self._check(luminance_cd_m2, exposure_us, gain_db)
+        cfg = self.cfg
+        mu = self.mean_electrons(luminance_cd_m2, exposure_us)
+        electrons = _shot_and_read_noise(mu, rng, cfg.poisson_exact_below, cfg.read_noise_e)
+        # The well caps the collected charge. (Read noise on a full well is below one DN and the ADC clips such pixels
+        # anyway: K₀·full well + black level > ADC range at every gain ≥ 0 dB with the default K₀.)
+        np.minimum(electrons, np.float32(cfg.full_well_e), out=electrons)
+        k = np.float32(cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0))
+        dn = electrons * k
+        dn += np.float32(cfg.black_level_dn)
+        np.rint(dn, out=dn)
+        np.clip(dn, 0.0, np.float32(cfg.adc_max_dn), out=dn)
+        return dn
+
+    def raw_to_8bit(self, raw_dn: np.ndarray) -> np.ndarray:
+        """Black-level subtraction, normalisation to the usable ADC range and the response curve → uint8 RGB.
+
+        Raw values are integers in [0, ADC max], so the whole chain is one lookup table over the ADC codes.
+        """
+        return self._dn_to_8bit[raw_dn.astype(np.int32)]
+
+    def capture(self, luminance_cd_m2: np.ndarray, exposure_us: float, gain_db: float,
+                rng: np.random.Generator) -> np.ndarray:
+        """The 8-bit RGB image the camera delivers for this scene and these settings.
+
+        Same model and same random draws as `raw_to_8bit(capture_raw(...))` (a test checks they agree exactly), fused
+        into one compiled pass over the pixels for speed.
+        """
+        self._check(luminance_cd_m2, exposure_us, gain_db)
+        cfg = self.cfg
+        lum = np.ascontiguousarray(luminance_cd_m2, dtype=np.float32)
+        z = rng.standard_normal(lum.shape, dtype=np.float32)
+        scale = float(self._photons_per_cd_m2_us) * exposure_us * cfg.quantum_efficiency
+        mu_small = _small_mean_mask(lum, self._gain_map, self._dark_map, np.float32(scale), np.float32(cfg.poisson_exact_below))
+        poisson = None
+        if mu_small is not None:
+            mu = self.mean_electrons(lum, exposure_us)
+            poisson = np.zeros(lum.shape, np.float32)
+            poisson[mu_small] = rng.poisson(mu[mu_small]).astype(np.float32)
+            mask = mu_small
+        else:
+            mask = np.zeros((1, 1, 1), np.bool_)
+            poisson = np.zeros((1, 1, 1), np.float32)
+        k = cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0)
+        return _fused_capture(lum, self._gain_map, self._dark_map, z, mask, poisson, mu_small is not None,
+                              np.float32(scale), np.float32(cfg.read_noise_e), np.float32(cfg.full_well_e),
+                              np.float32(k), np.float32(cfg.black_level_dn), np.float32(cfg.adc_max_dn),
+                              self._dn_to_8bit)
+
+    def saturation_luminance_cd_m2(self, exposure_us: float, gain_db: float) -> float:
+        """Scene luminance at which a pixel (without PRNU) reaches the first of full well or ADC full scale."""
+        cfg = self.cfg
+        k = cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0)
+        e_sat = min(cfg.full_well_e, (cfg.adc_max_dn - cfg.black_level_dn) / k)
+        return e_sat / (float(self._photons_per_cd_m2_us) * exposure_us * cfg.quantum_efficiency)
+
+    def _check(self, luminance: np.ndarray, exposure_us: float, gain_db: float) -> None:
+        if not (_finite_number(exposure_us) and EXPOSURE_US_MIN <= exposure_us <= EXPOSURE_US_MAX):
+            raise InputError(f"exposure_us {exposure_us!r} outside {EXPOSURE_US_MIN:g}–{EXPOSURE_US_MAX:g} µs")
+        if not (_finite_number(gain_db) and GAIN_DB_MIN <= gain_db <= GAIN_DB_MAX):
+            raise InputError(f"gain_db {gain_db!r} outside {GAIN_DB_MIN:g}–{GAIN_DB_MAX:g} dB")
+        if luminance.shape != (self.height, self.width, 3):
+            raise ValueError(f"luminance has shape {luminance.shape}, sensor is {(self.height, self.width, 3)}")
+
+
+def _shot_and_read_noise(mu: np.ndarray, rng: np.random.Generator, exact_below: float,
+                         read_noise_e: float) -> np.ndarray:
+    """Poisson(mu) shot noise plus N(0, σ_read²) read noise, in electrons (float32).
+
+    Where mu ≥ `exact_below` the sum is Gaussian with mean mu and variance mu + σ², drawn with one normal variate;
+    where mu is small (dark pixels) the shot noise is drawn exactly from the Poisson law and the same normal variate
+    supplies the read noise (the two pixel sets are disjoint, so the draws stay independent).
+    """
+    z = rng.standard_normal(mu.shape, dtype=np.float32)
+    var = mu + np.float32(read_noise_e ** 2)
+    out = mu + np.sqrt(var, out=var) * z
+    small = mu < exact_below
+    if small.any():
+        out[small] = rng.poisson(mu[small]).astype(np.float32) + np.float32(read_noise_e) * z[small]
+    return out
+
+
+def _finite_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+@numba.njit(cache=True)
+def _small_mean_mask_kernel(lum, gain_map, dark_map, scale, exact_below, out):
+    found = False
+    flat_l, flat_g, flat_d, flat_o = lum.ravel(), gain_map.ravel(), dark_map.ravel(), out.ravel()
+    for i in range(flat_l.size):
+        mu = max(flat_l[i] * scale * flat_g[i] + flat_d[i], np.float32(0.0))
+        small = mu < exact_below
+        flat_o[i] = small
+        found |= small
+    return found
+
+
+def _small_mean_mask(lum, gain_map, dark_map, scale, exact_below):
+    """Boolean mask of pixels whose mean electrons fall in the exact-Poisson regime, or None if there are none."""
+    out = np.empty(lum.shape, np.bool_)
+    return out if _small_mean_mask_kernel(lum, gain_map, dark_map, scale, exact_below, out) else None
+
+
+@numba.njit(cache=True)
+def _fused_capture(lum, gain_map, dark_map, z, small_mask, poisson, has_small, scale, read_noise, full_well, k,
+                   black, adc_max, lut):
+    out = np.empty(lum.shape, np.uint8)
+    fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
+    fm, fp = small_mask.ravel(), poisson.ravel()
+    read_var = read_noise * read_noise
+    for i in range(fl.size):
+        mu = max(fl[i] * scale * fg[i] + fd[i], np.float32(0.0))
+        if has_small and fm[i]:
+            e = fp[i] + read_noise * fz[i]
+        else:
+            e = mu + np.sqrt(mu + read_var) * fz[i]
+        e = min(e, full_well)
+        dn = np.float32(np.rint(e * k + black))
+        dn = min(max(dn, np.float32(0.0)), adc_max)
+        fo[i] = lut[np.int32(dn)]
+    return out
