@@ -270,16 +270,15 @@ class Renderer:
             ref = self._offset_pose(trajectory.pose_at(t0 + 0.5 * dur), camera_offset_m)
             self._cache[key] = dict(self.render_full(ref, glare=False), pose=ref)
         sharp = self._cache[key]
-        flow_a, flow_b = self._flow(sharp["depth"], sharp["pose"],
-                                    self._offset_pose(trajectory.pose_at(t0), camera_offset_m),
-                                    self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m))
-        max_flow = float(np.max(np.hypot(flow_b[..., 0] - flow_a[..., 0], flow_b[..., 1] - flow_a[..., 1])))
-        max_shift = float(max(np.abs(flow_a).max(), np.abs(flow_b).max()))
-        if max_shift < 0.5:
-            return self.apply_glare(sharp["luminance"])
-        n = int(min(64, math.ceil(2 * max_flow) + 1)) if max_flow >= 0.5 else 1
+        pa = self._offset_pose(trajectory.pose_at(t0), camera_offset_m)
+        pb = self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m)
         out = np.empty_like(sharp["luminance"])
-        _smear(sharp["luminance"], flow_a.astype(np.float32), flow_b.astype(np.float32), n, out)
+        K = self.K
+        max_shift = _blur_kernel(sharp["luminance"], sharp["depth"], K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                                 np.ascontiguousarray(sharp["pose"]), np.ascontiguousarray(pa),
+                                 np.ascontiguousarray(pb), out)
+        if max_shift < 0.5:  # no visible motion: the sharp render, untouched by resampling
+            return self.apply_glare(sharp["luminance"])
         return self.apply_glare(out)
 
     def _flow(self, depth, pose_ref, pose_a, pose_b):
@@ -312,35 +311,64 @@ class Renderer:
         return int(min(self.max_subframes, max(1, math.ceil(2 * max_flow))))
 
 
+@njit(cache=True, inline="always")
+def _project(pose, x, y, z, fx, fy, cx, cy):
+    """World point → pixel (x, y) in the camera at `pose` (camera-to-world 4×4)."""
+    dx, dy, dz = x - pose[0, 3], y - pose[1, 3], z - pose[2, 3]
+    qx = pose[0, 0] * dx + pose[1, 0] * dy + pose[2, 0] * dz
+    qy = pose[0, 1] * dx + pose[1, 1] * dy + pose[2, 1] * dz
+    qz = max(pose[0, 2] * dx + pose[1, 2] * dy + pose[2, 2] * dz, 1e-3)
+    return fx * qx / qz + cx, fy * qy / qz + cy
+
+
 @njit(cache=True, parallel=True)
-def _smear(img, flow_a, flow_b, n, out):
-    """out(x) = mean over the exposure of img sampled where the scene point seen at x at time τ sat at the reference
-    time: x − (flow at τ), flow interpolated linearly from flow_a (exposure start) to flow_b (end)."""
-    h, w = img.shape[0], img.shape[1]
+def _blur_kernel(img, depth, fx, fy, cx, cy, pose_ref, pose_a, pose_b, out):
+    """Exposure average by smearing: pixel x at time τ ∈ [start, end] sees the rendered point that sat at
+    x − flow(τ), flow interpolated linearly between the flows to the start (a) and end (b) poses, evaluated at x
+    from the reference render's depth (sky at 100 km). Samples per pixel follow its own blur length (≤ 64).
+    Returns the largest flow magnitude (px)."""
+    h, w = depth.shape
+    row_max = np.zeros(h)
     for y in prange(h):
+        m = 0.0
         for x in range(w):
+            z = depth[y, x]
+            if not z < 1e5:
+                z = 1e5
+            px = (x + 0.5 - cx) / fx * z
+            py = (y + 0.5 - cy) / fy * z
+            wx = pose_ref[0, 0] * px + pose_ref[0, 1] * py + pose_ref[0, 2] * z + pose_ref[0, 3]
+            wy = pose_ref[1, 0] * px + pose_ref[1, 1] * py + pose_ref[1, 2] * z + pose_ref[1, 3]
+            wz = pose_ref[2, 0] * px + pose_ref[2, 1] * py + pose_ref[2, 2] * z + pose_ref[2, 3]
+            ax, ay = _project(pose_a, wx, wy, wz, fx, fy, cx, cy)
+            bx, by = _project(pose_b, wx, wy, wz, fx, fy, cx, cy)
+            fax, fay = ax - (x + 0.5), ay - (y + 0.5)
+            fbx, fby = bx - (x + 0.5), by - (y + 0.5)
+            m = max(m, abs(fax), abs(fay), abs(fbx), abs(fby))
+            length = math.sqrt((fbx - fax) ** 2 + (fby - fay) ** 2)
+            n = min(64, int(math.ceil(2.0 * length)) + 1) if length >= 0.5 else 1
             acc0 = 0.0
             acc1 = 0.0
             acc2 = 0.0
             for k in range(n):
                 a = (k + 0.5) / n
-                sx = x - ((1 - a) * flow_a[y, x, 0] + a * flow_b[y, x, 0])
-                sy = y - ((1 - a) * flow_a[y, x, 1] + a * flow_b[y, x, 1])
-                sx = min(max(sx, 0.0), w - 1.0)
-                sy = min(max(sy, 0.0), h - 1.0)
+                sx = min(max(x - ((1 - a) * fax + a * fbx), 0.0), w - 1.0)
+                sy = min(max(y - ((1 - a) * fay + a * fby), 0.0), h - 1.0)
                 x0 = int(sx)
                 y0 = int(sy)
                 x1 = min(x0 + 1, w - 1)
                 y1 = min(y0 + 1, h - 1)
-                fx = sx - x0
-                fy = sy - y0
-                w00 = (1 - fx) * (1 - fy)
-                w01 = fx * (1 - fy)
-                w10 = (1 - fx) * fy
-                w11 = fx * fy
+                ux = sx - x0
+                uy = sy - y0
+                w00 = (1 - ux) * (1 - uy)
+                w01 = ux * (1 - uy)
+                w10 = (1 - ux) * uy
+                w11 = ux * uy
                 acc0 += w00 * img[y0, x0, 0] + w01 * img[y0, x1, 0] + w10 * img[y1, x0, 0] + w11 * img[y1, x1, 0]
                 acc1 += w00 * img[y0, x0, 1] + w01 * img[y0, x1, 1] + w10 * img[y1, x0, 1] + w11 * img[y1, x1, 1]
                 acc2 += w00 * img[y0, x0, 2] + w01 * img[y0, x1, 2] + w10 * img[y1, x0, 2] + w11 * img[y1, x1, 2]
             out[y, x, 0] = acc0 / n
             out[y, x, 1] = acc1 / n
             out[y, x, 2] = acc2 / n
+        row_max[y] = m
+    return row_max.max()

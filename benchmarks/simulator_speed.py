@@ -1,0 +1,122 @@
+"""Simulator speed: render (+ motion blur) (+ sensor, when expoctl.camera.sensor exists) frames/s per camera, and memory.
+
+Usage: .venv/bin/python benchmarks/simulator_speed.py [--frames 12] [--width 640] [--height 480] [--threads 0]
+Prints a table of medians over frames and writes benchmarks/results/simulator_speed.json.
+Frames are spread over the training city's whole route (open road, portals, tunnel interior), so the numbers mix
+scene types the way a traversal does. Each stage is timed per camera-frame; `total` = blurred render + sensor.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numba
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from expoctl.io import write_json  # noqa: E402
+from expoctl.world import Renderer, load_city  # noqa: E402
+
+
+def _sensor(width, height):
+    """The sensor helper's model if committed, else None."""
+    try:
+        from expoctl.camera.sensor import Sensor, SensorConfig
+    except ImportError:
+        return None, "expoctl.camera.sensor not available"
+    import yaml
+    cfg_path = ROOT / "conf" / "sensor" / "default.yaml"
+    cfg = yaml.safe_load(cfg_path.read_text()) if cfg_path.is_file() else None
+    try:
+        return Sensor(SensorConfig.from_dict(cfg), height, width, 0), None
+    except Exception as exc:  # report, do not hide: the table says why the sensor column is missing
+        return None, f"Sensor() failed: {exc}"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=12)
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=480)
+    ap.add_argument("--threads", type=int, default=0, help="numba threads (0 = numba default)")
+    ap.add_argument("--city", default="train")
+    args = ap.parse_args()
+    if args.threads:
+        numba.set_num_threads(args.threads)
+
+    tracemalloc.start()
+    t_setup = time.perf_counter()
+    city = load_city(args.city)
+    traj = city.traversal(0, None, fps=15.0, seed=0)
+    renderer = Renderer(city, args.width, args.height, 70.0, conditions=traj.conditions)
+    shared = Renderer(city, args.width, args.height, 70.0, conditions=traj.conditions, share_render=True)
+    renderer.render_full(traj.poses[0])  # JIT compile / load cache outside the timings
+    shared.render_exposure(traj, 0, 5000.0)
+    setup_s = time.perf_counter() - t_setup
+    sensor, sensor_note = _sensor(args.width, args.height)
+    rng = np.random.default_rng(0)
+
+    frames = np.linspace(1, len(traj.poses) - 2, args.frames).astype(int)
+    rows = {k: [] for k in ("render_sharp", "render_blur_5ms", "render_blur_20ms", "sensor", "total_5ms",
+                            "rig_pair_shared_5ms")}
+    for k in frames:
+        t = time.perf_counter()
+        renderer.render(traj.poses[k])
+        rows["render_sharp"].append(time.perf_counter() - t)
+        for exp_us, key in ((5000.0, "render_blur_5ms"), (20000.0, "render_blur_20ms")):
+            renderer._cache.clear()
+            t = time.perf_counter()
+            lum = renderer.render_exposure(traj, int(k), exp_us)
+            rows[key].append(time.perf_counter() - t)
+        lum5 = renderer.render_exposure(traj, int(k), 5000.0)  # cached sharp render: smear only
+        if sensor is not None:
+            t = time.perf_counter()
+            sensor.capture(lum5, 5000.0, 6.0, rng)
+            rows["sensor"].append(time.perf_counter() - t)
+            rows["total_5ms"].append(rows["render_blur_5ms"][-1] + rows["sensor"][-1])
+        shared._cache.clear()
+        t = time.perf_counter()  # both cameras of the rig from one render (share_render=True), per camera
+        shared.render_exposure(traj, int(k), 5000.0)
+        shared.render_exposure(traj, int(k), 5000.0, camera_offset_m=0.0392)
+        rows["rig_pair_shared_5ms"].append((time.perf_counter() - t) / 2)
+        del lum
+    _, peak_py = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    maxrss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+    result = {
+        "city": args.city, "width": args.width, "height": args.height, "frames": int(len(frames)),
+        "numba_threads": numba.get_num_threads(), "cpu_count": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0], "python": platform.python_version(),
+        "setup_s": round(setup_s, 2), "sensor_note": sensor_note,
+        "median_ms": {k: round(1e3 * float(np.median(v)), 2) for k, v in rows.items() if v},
+        "frames_per_s": {k: round(1.0 / float(np.median(v)), 2) for k, v in rows.items() if v},
+        "peak_python_alloc_mb": round(peak_py / 2**20, 1), "max_rss_mb": round(maxrss_mb, 1),
+    }
+    print(f"simulator speed, {args.width}x{args.height}, city {args.city}, {len(frames)} frames, "
+          f"{result['numba_threads']} numba threads, load avg {result['load_average_1min']:.1f}")
+    print(f"{'stage (per camera-frame)':28s} {'median ms':>10s} {'frames/s':>9s}")
+    for k in rows:
+        if rows[k]:
+            print(f"{k:28s} {result['median_ms'][k]:10.1f} {result['frames_per_s'][k]:9.2f}")
+    if sensor_note:
+        print(f"sensor: {sensor_note}")
+    print(f"peak python allocations {result['peak_python_alloc_mb']} MB, max RSS {result['max_rss_mb']} MB")
+    out = ROOT / "benchmarks" / "results" / "simulator_speed.json"
+    write_json(result, out)
+    print(f"wrote {out.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
