@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from expoctl.controllers.base import Settings
-from expoctl.camera.response import linear_to_8bit
+from expoctl.controllers.metrics import srgb_linear_to_uint8
 from expoctl.controllers.registry import make_controller
 
 NAMES = ["agae", "mean_intensity", "shim", "shin"]
@@ -37,7 +37,7 @@ def scene(shape=(240, 320), seed=0):
 def capture(rad, s, rng):
     lin = rad * s.exposure_us * 10 ** (s.gain_db / 20) / P_REF
     lin = lin + rng.normal(0, 1, lin.shape) * np.sqrt(np.maximum(lin, 0) / 2000 + (1e-3 * 10 ** (s.gain_db / 20)) ** 2)
-    return np.repeat(linear_to_8bit(lin)[..., None], 3, axis=2)
+    return np.repeat(srgb_linear_to_uint8(lin)[..., None], 3, axis=2)
 
 
 def ev(s):
