@@ -8,7 +8,7 @@ import pytest
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.controllers.agae import AgAeController
 from expoctl.controllers.base import Settings
-from expoctl.controllers.metrics import srgb_linear_to_uint8
+from expoctl.camera.response import linear_to_8bit
 from expoctl.errors import ConfigError
 
 P_REF = 1000.0  # µs·(linear gain) at which a scene radiance of 1.0 fills full scale
@@ -26,7 +26,7 @@ def _scene(seed=0, shape=(48, 64)):
 
 def _capture(radiance, s: Settings) -> np.ndarray:
     lin = np.clip(radiance * _product(s) / P_REF, 0.0, 1.0)
-    return np.repeat(srgb_linear_to_uint8(lin)[..., None], 3, axis=2)
+    return np.repeat(linear_to_8bit(lin)[..., None], 3, axis=2)
 
 
 def _close(a: Settings, b: Settings) -> bool:
@@ -51,8 +51,16 @@ def test_metering_uses_the_linear_image():
     img = np.full((10, 10, 3), 118, np.uint8)
     out = c.update(img, Settings(0.0, 5000.0))
     lin = ((118 / 255 + 0.055) / 1.055) ** 2.4
-    assert out.exposure_us == pytest.approx(5000.0 * 0.18 / lin, rel=1e-9)
+    assert out.exposure_us == pytest.approx(5000.0 * 0.18 / lin, rel=1e-6)  # float32 inverse LUT
     assert abs(math.log2(out.exposure_us / 5000.0)) < 0.02  # a gamma-domain meter would be off by ~1.4 EV
+
+
+def test_response_curve_is_configurable():
+    """With a plain 2.2 power law, code 128 is (128/255)^2.2 linear; the AE must meter exactly that."""
+    img = np.full((4, 4, 3), 128, np.uint8)
+    m_gamma = AgAeController({"response_curve": "gamma", "response_gamma": 2.2}).metered_mean(img)
+    m_linear = AgAeController({"response_curve": "linear"}).metered_mean(img)
+    assert m_gamma == pytest.approx((128 / 255) ** 2.2, rel=1e-6) and m_linear == pytest.approx(128 / 255, rel=1e-6)
 
 
 def test_damping_fraction_and_one_extra_frame_of_latency():
@@ -61,7 +69,7 @@ def test_damping_fraction_and_one_extra_frame_of_latency():
     c = AgAeController({"damping": 0.2, "max_step_ev": 10.0})
     s0 = Settings(0.0, 1000.0)
     c.reset(s0)
-    dark = np.full((8, 8, 3), srgb_linear_to_uint8(np.array(0.09))[()], np.uint8)  # ≈ 1 EV under the 18 % target
+    dark = np.full((8, 8, 3), linear_to_8bit(np.array(0.09))[()], np.uint8)  # ≈ 1 EV under the 18 % target
     assert _close(c.update(dark, s0), s0)  # nothing measured yet is acted on
     m = c.metered_mean(dark)
     out = c.update(dark, s0)
@@ -172,6 +180,7 @@ def test_settles_to_the_target_grey_without_oscillation():
         ({"exposure_upper_us": 50000.0}, "controllers.agae.exposure_upper_us"),
         ({"dampnig": 0.2}, "controllers.agae.dampnig"),
         ({"internal_latency_frames": 1.5}, "controllers.agae.internal_latency_frames"),
+        ({"response_curve": "log"}, "controllers.agae.response_curve"),
     ],
 )
 def test_bad_config_names_the_key(params, key):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from expoctl.controllers.base import Settings
-from expoctl.controllers.metrics import srgb_linear_to_uint8
+from expoctl.camera.response import linear_to_8bit
 from expoctl.controllers.shin import ShinController, matlab_h, nelder_mead, to_point, to_settings
 from expoctl.errors import ConfigError
 
@@ -93,7 +93,7 @@ def test_hold_restarts_when_the_objective_drifts():
 
 def _capture(radiance, s):
     p = s.exposure_us * 10 ** (s.gain_db / 20) / 1000.0
-    return np.repeat(srgb_linear_to_uint8(radiance * p)[..., None], 3, axis=2)
+    return np.repeat(linear_to_8bit(radiance * p)[..., None], 3, axis=2)
 
 
 def test_tunnel_exit_leaves_saturation_by_restarting():

@@ -6,7 +6,8 @@ input, including all-black and all-saturated frames: controllers must never emit
 Conventions
 - "grey" is the plain mean of the R, G, B channels as float64 on the 0–255 scale (Shin's MATLAB averages the channels;
   see controllers.md §2).
-- "linear" values are on [0, 1] of full scale, i.e. after inverting the camera response.
+- "linear" values are on [0, 1] of full scale, i.e. after inverting the camera response
+  (`expoctl.camera.response`).
 """
 
 from __future__ import annotations
@@ -19,27 +20,7 @@ import numpy as np
 ResponseInverse = Callable[[np.ndarray], np.ndarray]
 
 
-# ----------------------------------------------------------------------------------------------- response / metering
-def _srgb_decode(v: np.ndarray) -> np.ndarray:
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-
-
-_SRGB_LUT = _srgb_decode(np.arange(256, dtype=np.float64) / 255.0)
-
-
-def srgb_uint8_to_linear(img: np.ndarray) -> np.ndarray:
-    """Invert the sRGB transfer curve: uint8 code → linear [0, 1]. Default response for AG+AE until a calibrated
-    camera response is supplied (the simulator's is `expoctl.camera.response.uint8_to_linear`)."""
-    return _SRGB_LUT[np.asarray(img, dtype=np.uint8)]
-
-
-def srgb_linear_to_uint8(linear: np.ndarray) -> np.ndarray:
-    """Forward sRGB curve (linear [0, 1] → uint8), the inverse of `srgb_uint8_to_linear` up to quantisation."""
-    v = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
-    enc = np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
-    return np.clip(np.rint(enc * 255.0), 0, 255).astype(np.uint8)
-
-
+# ------------------------------------------------------------------------------------------------------ metering
 #: fraction of the frame area metered by the FLIR modes (Spinnaker docs: spot ≈ 3 %, partial ≈ 11 %, centred)
 METERING_AREA_FRACTION = {"average": 1.0, "spot": 0.03, "partial": 0.11}
 

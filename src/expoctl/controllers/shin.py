@@ -36,7 +36,8 @@ import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Controller, Settings
-from expoctl.controllers.metrics import luma_uint8, shin_score, srgb_uint8_to_linear
+from expoctl.camera.response import uint8_to_linear
+from expoctl.controllers.metrics import luma_uint8, shin_score
 from expoctl.controllers.params import check_params, require
 
 DB_PER_STOP = 20.0 * math.log10(2.0)
@@ -208,7 +209,7 @@ class ShinController(Controller):
         ok = (y > 8) & (y < 247)
         if ok.mean() < 0.05:
             return None
-        lin = float(srgb_uint8_to_linear(y[ok]).mean())
+        lin = float(uint8_to_linear(y[ok]).mean())  # default response: only ratios matter here
         return math.log2(lin) - math.log2(s.exposure_us) - s.gain_db / DB_PER_STOP
 
     def _start_search(self, x_now: np.ndarray, mean: float, scene_ev: float | None) -> None:
