@@ -117,9 +117,9 @@ def test_tuning_ties_go_to_the_first_grid_point():
 def test_grid_config():
     from expoctl.features.sumlog import SumLogGrid
 
-    g = SumLogGrid.from_dict({"alphas": [[1, 0, 0], [0.5, 0.5, 0]], "betas": [1, 4]})
-    assert g.alphas == ((1.0, 0.0, 0.0), (0.5, 0.5, 0.0)) and g.betas == (1.0, 4.0) and g.rescale == "range"
+    g = SumLogGrid.from_dict({"alphas": [[1, 0, 0], [0.5, 0.5, 0]], "betas": [1, 4], "max_pairs": 10})
+    assert g.alphas == ((1.0, 0.0, 0.0), (0.5, 0.5, 0.0)) and g.betas == (1.0, 4.0) and g.max_pairs == 10
     for bad, key in [({"alphas": [[1, 0]]}, "alphas"), ({"betas": []}, "betas"), ({"betas": [0.0]}, "betas"),
-                     ({"rescale": "x"}, "rescale"), ({"max_pairs": 10}, "max_pairs")]:
+                     ({"rescale": "x"}, "rescale"), ({"max_pairs": 0}, "max_pairs"), ({"grid": 1}, "grid")]:
         with pytest.raises(ConfigError, match=f"features\\.sumlog\\.{key}"):
             SumLogGrid.from_dict(bad)

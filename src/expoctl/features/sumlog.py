@@ -130,16 +130,17 @@ def tune_sumlog(
 
 @dataclass(frozen=True)
 class SumLogGrid:
-    """The `features.sumlog` config: the tuning grid (how many training pairs to tune on is evaluate.sumlog_pairs)."""
+    """The `features.sumlog` config: the tuning grid and how many sequential training pairs to tune on."""
 
     alphas: tuple[tuple[float, float, float], ...] = ((1 / 3, 1 / 3, 1 / 3),)
     betas: tuple[float, ...] = (1.0,)
     rescale: str = "range"
+    max_pairs: int = 100
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "SumLogGrid":
         d = dict(d or {})
-        known = {"alphas", "betas", "rescale"}
+        known = {"alphas", "betas", "rescale", "max_pairs"}
         for k in d:
             if k not in known:
                 raise ConfigError(f"features.sumlog.{k}", f"unknown key (known: {', '.join(sorted(known))})")
@@ -158,4 +159,7 @@ class SumLogGrid:
             raise ConfigError(f"features.sumlog.{key}", exc.problem) from None
         if rescale == "range" and any(p.beta <= 0 for p in params):
             raise ConfigError("features.sumlog.betas", "must all be > 0 with rescale 'range' (log 0 is unbounded)")
-        return cls(tuple(tuple(float(v) for v in a) for a in alphas), tuple(float(b) for b in betas), rescale)
+        max_pairs = d.get("max_pairs", grid.max_pairs)
+        if not isinstance(max_pairs, int) or isinstance(max_pairs, bool) or max_pairs < 1:
+            raise ConfigError("features.sumlog.max_pairs", f"must be a positive integer, got {max_pairs!r}")
+        return cls(tuple(tuple(float(v) for v in a) for a in alphas), tuple(float(b) for b in betas), rescale, max_pairs)
