@@ -7,6 +7,12 @@ baseline; the model is logged with mlflow.pytorch.log_model.
 Scale-out: the same command runs data-parallel under torchrun, e.g.
     torchrun --standalone --nproc_per_node 2 -m stages.train
 (gloo backend on CPU; `train.batch_size` stays the global batch). Only rank 0 opens the MLflow run and writes files.
+Give each process its share of the cores with `train.num_threads` (cores / nproc_per_node). On a SLURM cluster,
+one task per node, e.g. 2 nodes × 4 processes:
+    srun --nodes 2 --ntasks-per-node 1 --cpus-per-task 32 torchrun --nnodes 2 --nproc_per_node 4 \
+        --rdzv_backend c10d --rdzv_endpoint "$(scontrol show hostnames $SLURM_NODELIST | head -1):29500" -m stages.train
+(the project directory and data on a shared filesystem; MLFLOW_TRACKING_URI pointing at a tracking server).
+Hyperparameter sweeps go through Hydra's submitit launcher instead: see stages/sweep.py.
 """
 
 from __future__ import annotations
