@@ -6,6 +6,8 @@ the radiance steps by ±10 EV (tunnel exit / entry) for 200 frames. Reported per
 settle = frames after the step until the exposure product stays within 1/3 EV of its final value (mean of the last
 20 frames); max_step_ev = largest frame-to-frame change of the product; median_change_pct = median |ΔP|/P per frame
 over the 200 frames. Speed: median ms per update() at 640×480 over 30 calls.
+Second table: the same ±10 EV steps through the project's EMVA-1288 sensor (expoctl.camera.sensor, defaults, f/2):
+textured luminance with mean 5 cd/m² (tunnel interior) ↔ 5120 cd/m² (daylight).
 Usage: .venv/bin/python benchmarks/controllers_step_response.py
 """
 
@@ -20,7 +22,7 @@ import cv2
 import numpy as np
 
 from expoctl.controllers.base import Settings
-from expoctl.controllers.metrics import srgb_linear_to_uint8
+from expoctl.camera.response import linear_to_8bit
 from expoctl.controllers.registry import make_controller
 
 NAMES = ["agae", "mean_intensity", "shim", "shin"]
@@ -37,24 +39,37 @@ def scene(shape=(240, 320), seed=0):
 def capture(rad, s, rng):
     lin = rad * s.exposure_us * 10 ** (s.gain_db / 20) / P_REF
     lin = lin + rng.normal(0, 1, lin.shape) * np.sqrt(np.maximum(lin, 0) / 2000 + (1e-3 * 10 ** (s.gain_db / 20)) ** 2)
-    return np.repeat(srgb_linear_to_uint8(lin)[..., None], 3, axis=2)
+    return np.repeat(linear_to_8bit(lin)[..., None], 3, axis=2)
 
 
 def ev(s):
     return math.log2(s.exposure_us) + s.gain_db / (20 * math.log10(2))
 
 
-def step_response(name, ev_step, n_before=80, n_after=200):
+def emva_camera():
+    from expoctl.camera.sensor import Sensor, SensorConfig
+
+    sensor = Sensor(SensorConfig(), 240, 320, seed=0)
+    tex = scene()
+    lum = np.repeat((tex / tex.mean() * 5.0)[..., None], 3, axis=2).astype(np.float32)  # 5 cd/m² mean
+    return lambda rad_scale, s, rng: sensor.capture(lum * rad_scale, s.exposure_us, s.gain_db, rng)
+
+
+def step_response(name, ev_step, n_before=80, n_after=200, camera=None):
     rng = np.random.default_rng(1)
-    dark = scene()
-    first, second = (dark, dark * 2**ev_step) if ev_step > 0 else (dark * 2**-ev_step, dark)
+    if camera is None:
+        dark = scene()
+        cam = lambda k, s, r: capture(dark * k, s, r)  # noqa: E731
+    else:
+        cam = camera
+    first, second = (1.0, 2.0**ev_step) if ev_step > 0 else (2.0**-ev_step, 1.0)
     c = make_controller(name, {})
     s = Settings(0.0, 5000.0)
     c.reset(s)
     evs = []
     for i in range(n_before + n_after):
         evs.append(ev(s))
-        s = c.update(capture(first if i < n_before else second, s, rng), s)
+        s = c.update(cam(first if i < n_before else second, s, rng), s)
     evs = np.array(evs)
     after = evs[n_before:]
     final = after[-20:].mean()
@@ -93,6 +108,14 @@ def main():
             results[name][label] = r
             settle = "—" if r["settle_frames"] is None else str(r["settle_frames"])
             print(f"{name:15s} {label:>5s} {settle:>7s} {r['max_step_ev']:9.3f} {r['median_change_pct']:9.2f} {ms:10.1f}")
+    print("\nwith the EMVA-1288 sensor (5 ↔ 5120 cd/m², f/2)")
+    camera = emva_camera()
+    for name in NAMES:
+        for label, st in (("exit", 10.0), ("entry", -10.0)):
+            r = step_response(name, st, camera=camera)
+            results[name][label + "_emva_sensor"] = r
+            settle = "—" if r["settle_frames"] is None else str(r["settle_frames"])
+            print(f"{name:15s} {label:>5s} {settle:>7s} {r['max_step_ev']:9.3f} {r['median_change_pct']:9.2f}")
     out = Path(__file__).parent / "results" / "controllers_step_response.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2))
