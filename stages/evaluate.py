@@ -76,7 +76,8 @@ def log_child_runs(result, tracker) -> list[str]:
 
     if mlflow.active_run() is None:  # a fake tracker in tests: nothing to nest under
         return []
-    parent = mlflow.active_run().info.run_id
+    active = mlflow.active_run()
+    parent, experiment_id = active.info.run_id, active.info.experiment_id
     ids = []
     with tempfile.TemporaryDirectory() as tmp:
         for split, ctrls in result.metrics.items():
@@ -84,7 +85,8 @@ def log_child_runs(result, tracker) -> list[str]:
             for ctrl in ctrls:
                 tags = {"stage": "evaluate", "controller": ctrl, "city": city, "route_split": split,
                         "parent_stage_run": parent}
-                with mlflow.start_run(run_name=f"{ctrl} @ {city}", nested=True, tags=tags) as child:
+                with mlflow.start_run(run_name=f"{ctrl} @ {city}", experiment_id=experiment_id, nested=True,
+                                      tags=tags) as child:
                     mlflow.log_params({"controller": ctrl, "city": city, "route_split": split})
                     mlflow.log_metrics(child_metrics(result, split, ctrl))
                     fig = Path(tmp) / f"timeline_{split}_{ctrl}.png"

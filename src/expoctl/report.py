@@ -20,7 +20,7 @@ import pandas as pd
 from expoctl.errors import ConfigError, InputError
 from expoctl.evaluate_aggregate import validate_metrics
 from expoctl.evaluate_config import CONTROLLER_NAMES
-from expoctl.report_figures import image_strips, label, nfm_bars, tunnel_timeline
+from expoctl.report_figures import image_strips, label, nfm_bars, ordered, tunnel_timeline
 
 SPLIT_TITLE = {"validation": "validation city (training city, other conditions)", "test": "test city (unseen)"}
 #: the paper's numbers (Tables I–III) to compare shapes with; absolute values differ (real camera, 2048×1536)
@@ -64,7 +64,7 @@ def load_eval(reports_dir: str | os.PathLike) -> tuple[dict, pd.DataFrame, pd.Da
     except json.JSONDecodeError as exc:
         raise InputError(f"{mpath}: not valid JSON ({exc})") from None
     present = [s for s in ("validation", "test") if s in metrics] if isinstance(metrics, dict) else []
-    ctrls = sorted({c for s in present for c in metrics[s]}, key=lambda c: (CONTROLLER_NAMES + (c,)).index(c))
+    ctrls = ordered({c for s in present for c in metrics[s]})
     problems = validate_metrics(metrics, ctrls, present) if present else ["no route split (validation, test)"]
     if problems:
         raise InputError(f"{mpath}: does not follow the metrics.json schema: " + "; ".join(problems[:5]))
@@ -86,9 +86,8 @@ def _fmt(v) -> str:
 
 def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bool = False) -> str:
     """Markdown table: Lighting | Method | Median NFM ORB, libviso2 | Minimum NFM ORB, libviso2."""
-    ctrls = list(metrics[split])
+    ctrls = ordered(metrics[split])
     fes = ("orb_sumlog", "viso_sumlog") if sumlog else ("orb", "viso")
-    suffix = " (SL)" if sumlog else ""
     lines = ["| Lighting | Method | Median NFM ORB | Median NFM libviso2 | Minimum NFM ORB | Minimum NFM libviso2 |",
              "|---|---|---:|---:|---:|---:|"]
     for kind in kinds:
@@ -105,10 +104,12 @@ def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bo
                 s = _fmt(v)
                 if c == "oracle":
                     s = f"*{s}*"
-                elif v is not None and best[(stat, fe)] is not None and v == best[(stat, fe)]:
+                elif v is not None and best[(stat, fe)] and v == best[(stat, fe)]:  # no bold when all are 0
                     s = f"**{s}**"
                 cells.append(s)
-            name = f"*{label(c)}{suffix} (upper bound)*" if c == "oracle" else f"{label(c)}{suffix}"
+            name = label(c) + (" (SL)" if sumlog else "")
+            if c == "oracle":
+                name = f"*{name}, upper bound*"
             lines.append(f"| {'**' + kind.capitalize() + '**' if i == 0 else ''} | {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -116,9 +117,7 @@ def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bo
 def tracking_table(metrics: dict, runs: pd.DataFrame) -> str:
     """Table III: VO tracking successes per controller and split, plus the mean ATE over successful runs."""
     splits = [s for s in ("validation", "test") if s in metrics]
-    ctrls = []
-    for s in splits:
-        ctrls += [c for c in metrics[s] if c not in ctrls]
+    ctrls = ordered({c for s in splits for c in metrics[s]})
     head = "| Method | " + " | ".join(f"VO successes, {s}" for s in splits) + " | " + \
         " | ".join(f"ATE (m), {s} successes" for s in splits) + " |"
     lines = [head, "|---|" + "---:|" * (2 * len(splits))]

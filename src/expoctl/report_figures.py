@@ -22,9 +22,15 @@ CONTROLLER_STYLE = {  # colour, label
     "shim": ("#8c564b", "Shim"),
     "mean_intensity": ("#e377c2", "Mean intensity"),
     "fixed": ("#7f7f7f", "Fixed"),
-    "learned": ("#1f77b4", "Ours (learned)"),
+    "learned": ("#1f77b4", "Ours"),
     "oracle": ("#2ca02c", "Oracle"),
 }
+
+
+def ordered(names) -> list[str]:
+    """Controller names in the house order (agae, shin, shim, mean_intensity, fixed, learned, oracle), others last."""
+    order = list(CONTROLLER_STYLE)
+    return sorted(names, key=lambda c: (order.index(c) if c in order else len(order), c))
 
 
 def label(controller: str) -> str:
@@ -79,8 +85,8 @@ def tunnel_timeline(frames: pd.DataFrame, path: str | os.PathLike, splits=("vali
     fig, axes = plt.subplots(4, len(chosen), figsize=(6.2 * len(chosen), 9.5), sharex="col", squeeze=False)
     for col, (split, seq) in enumerate(chosen):
         w_all = frames[frames["sequence"] == seq]
-        for ctrl, w in w_all.groupby("controller", sort=False):
-            w = w.sort_values("frame")
+        for ctrl in ordered(set(w_all["controller"])):
+            w = w_all[w_all["controller"] == ctrl].sort_values("frame")
             colour, name = CONTROLLER_STYLE.get(ctrl, (None, ctrl))
             x = w["frame"].to_numpy()
             kw = dict(color=colour, label=name, lw=1.3 if ctrl in ("learned", "agae", "oracle") else 0.9)
@@ -187,7 +193,7 @@ def controller_timeline(frames: pd.DataFrame, split: str, controller: str, path:
 def nfm_bars(metrics: dict, path: str | os.PathLike, split: str, kind: str = "dynamic") -> bool:
     """Bar chart: mean median/minimum NFM per controller and front end (one split, one section kind)."""
     plt = _plt()
-    ctrls = list((metrics.get(split) or {}).keys())
+    ctrls = ordered((metrics.get(split) or {}).keys())
     if not ctrls:
         return False
     fes = ("orb", "viso", "orb_sumlog", "viso_sumlog")

@@ -1,0 +1,64 @@
+"""Report tables from a hand-made metrics.json / runs table, and clean errors on missing or malformed inputs."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pandas as pd
+import pytest
+
+from expoctl.errors import ConfigError, InputError
+from expoctl.evaluate_run import VARIANTS
+from expoctl.report import ReportConfig, load_eval, nfm_table, tracking_table
+
+
+def _metrics():
+    def entry(med, mn, ok):
+        e = {k: {v: {"median_nfm": float(med), "min_nfm": float(mn)} for v in VARIANTS} for k in ("static", "dynamic")}
+        e["tracking_success"] = [ok, 2]
+        return e
+
+    return {"validation": {"oracle": entry(500, 300, 2), "agae": entry(400, 50, 0), "learned": entry(420, 90, 2)}}
+
+
+def test_nfm_table_orders_controllers_bolds_best_causal_and_italicises_the_oracle():
+    md = nfm_table(_metrics(), "validation").splitlines()
+    assert md[0].startswith("| Lighting | Method | Median NFM ORB")
+    body = md[2:]
+    assert [r.split("|")[2].strip() for r in body[:3]] == ["AG+AE", "Ours", "*Oracle, upper bound*"]
+    assert body[0].split("|")[3].strip() == "400"
+    assert body[1].split("|")[3].strip() == "**420**" and body[1].split("|")[5].strip() == "**90**"
+    assert body[2].split("|")[3].strip() == "*500*"  # the oracle is never bolded, even when highest
+    assert "**Dynamic**" in body[3]
+    sl = nfm_table(_metrics(), "validation", sumlog=True)
+    assert "AG+AE (SL)" in sl
+
+
+def test_tracking_table_counts_and_ate_over_successes():
+    runs = pd.DataFrame({"route_split": ["validation"] * 4, "controller": ["agae", "agae", "learned", "learned"],
+                         "vo_success": [False, False, True, True], "vo_ate_m": [9.0, 9.0, 0.5, 1.5]})
+    md = tracking_table(_metrics(), runs)
+    assert "| AG+AE | 0/2 | — |" in md and "| Ours | 2/2 | 1.00 |" in md
+
+
+def test_load_eval_names_missing_and_malformed_files(tmp_path):
+    with pytest.raises(InputError, match="metrics.json: missing"):
+        load_eval(tmp_path)
+    (tmp_path / "metrics.json").write_text("{not json")
+    with pytest.raises(InputError, match="not valid JSON"):
+        load_eval(tmp_path)
+    bad = copy.deepcopy(_metrics())
+    del bad["validation"]["agae"]["dynamic"]["viso"]
+    (tmp_path / "metrics.json").write_text(json.dumps(bad))
+    with pytest.raises(InputError, match="schema"):
+        load_eval(tmp_path)
+    (tmp_path / "metrics.json").write_text(json.dumps(_metrics()))
+    with pytest.raises(InputError, match="frames.parquet: missing"):
+        load_eval(tmp_path)
+
+
+def test_report_config_checks():
+    assert ReportConfig.from_dict(None) == ReportConfig()
+    with pytest.raises(ConfigError, match="report.strip_portal"):
+        ReportConfig.from_dict({"strip_portal": "middle"})
