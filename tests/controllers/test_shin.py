@@ -175,3 +175,26 @@ def test_black_frames_at_the_exposure_limit_raise_gain():
     for _ in range(4):
         s = c.update(_grey(0), s)
     assert s.gain_db > 5.0 and s.exposure_us == pytest.approx(30000.0, rel=0.5)
+
+
+class _NoisyKnownObjective(_KnownObjective):
+    """Known landscape plus a single-frame outlier every third frame (sensor noise at high gain)."""
+
+    frame = 0
+
+    def score(self, image):
+        self.frame += 1
+        return super().score(image) * (0.7 if self.frame % 3 == 0 else 1.0)
+
+
+def test_single_frame_outliers_in_the_hold_phase_do_not_restart_the_search():
+    c = _NoisyKnownObjective({"restart_scene_ev": 1e9, "max_evaluations": 30})
+    s = Settings(0.0, 2000.0)
+    c.reset(s)
+    for _ in range(40):  # search (budget 30 frames), then hold
+        s = c.update(_grey(), s)
+    assert c._hold is not None
+    restarts = c.n_restarts
+    for _ in range(30):  # one frame in three scores 30 % low: the medians do not move
+        s = c.update(_grey(), s)
+    assert c.n_restarts == restarts

@@ -17,10 +17,12 @@ Deviations from the MATLAB demo (Test_nelder_mead_AE.m / nelder_mead_AE.m), all 
   shrink does not re-evaluate the best vertex (MATLAB re-scores it, costing a frame).
 - Restart policy (the objective drifts while the simplex searches, and saturated frames make it flat):
   * after convergence the controller holds the best point and keeps scoring every frame; it restarts from the
-    current point when the score moves by more than max(restart_abs_drift, restart_rel_drift·|score|) from the
-    converged value, or when the held image is badly exposed (mean grey < dark_mean or > bright_mean);
-  * during a search it restarts when the scene brightness estimate (linear mean of unclipped pixels divided by
-    the exposure product) has moved by more than restart_scene_ev since the search began;
+    current point when the median score of the last `hold_window` held frames differs from the median of the
+    first `hold_window` by more than max(restart_abs_drift, restart_rel_drift·|reference|) (medians, because
+    sensor noise alone moves a single frame's score by several per cent at high gain), or at once when the held
+    image is badly exposed (mean grey < dark_mean or > bright_mean);
+  * searching or holding, it restarts at once when the scene brightness estimate (linear mean of unclipped pixels
+    divided by the exposure product) has moved by more than restart_scene_ev since the search began;
   * a search restarts from the frame in hand when `max_mismatched_frames` frames in a row were not captured at
     the commanded vertex (the camera did not apply it);
   * a restart from a badly exposed frame first moves x0 along exposure by MATLAB's h step (a mean-intensity
@@ -60,6 +62,7 @@ DEFAULTS: dict = {
     "min_initial_step_ev": 0.25,
     "restart_abs_drift": 0.05,
     "restart_rel_drift": 0.1,
+    "hold_window": 3,  # frames per median in the hold-phase drift test
     "restart_scene_ev": 1.5,
     "dark_mean": 15.0,
     "bright_mean": 240.0,
@@ -153,6 +156,7 @@ class ShinController(Controller):
         require(p["restart_scene_ev"] > 0, k + "restart_scene_ev", "must be > 0")
         require(0 <= p["dark_mean"] < p["bright_mean"] <= 255, k + "bright_mean", "need 0 <= dark_mean < bright_mean <= 255")
         require(p["max_mismatched_frames"] >= 1, k + "max_mismatched_frames", "must be >= 1")
+        require(p["hold_window"] >= 1, k + "hold_window", "must be >= 1")
         self.reset(Settings(0.0, 5000.0))
 
     # ------------------------------------------------------------------------------------------------ public API
@@ -160,7 +164,7 @@ class ShinController(Controller):
         self._search: Generator | None = None
         self._pending: np.ndarray | None = None  # point we commanded and whose image we wait for
         self._hold: np.ndarray | None = None
-        self._hold_score = 0.0
+        self._hold_scores: list[float] = []  # scores of the frames captured at the held point
         self._search_scene_ev: float | None = None
         self._command = initial.clamped()
         self.n_restarts = -1  # the first search is not a restart
@@ -178,16 +182,7 @@ class ShinController(Controller):
         self._last_mean, self._last_scene_ev = mean, scene_ev
         if self._search is None and self._hold is None:
             self._start_search(x_now, mean, scene_ev)
-        elif self._hold is not None:
-            drift = abs(score - self._hold_score)
-            limit = max(self.params["restart_abs_drift"], self.params["restart_rel_drift"] * abs(self._hold_score))
-            if drift > limit or self._badly_exposed(mean):
-                self._start_search(x_now, mean, scene_ev)
-        elif (
-            scene_ev is not None
-            and self._search_scene_ev is not None
-            and abs(scene_ev - self._search_scene_ev) > self.params["restart_scene_ev"]
-        ):
+        elif self._scene_changed(scene_ev) or (self._hold is not None and self._hold_drifted(score, mean)):
             self._start_search(x_now, mean, scene_ev)
         if self._search is not None:
             self._advance(x_now, -score)
@@ -198,6 +193,25 @@ class ShinController(Controller):
         return self._command
 
     # ------------------------------------------------------------------------------------------------ internals
+    def _scene_changed(self, scene_ev: float | None) -> bool:
+        return (
+            scene_ev is not None
+            and self._search_scene_ev is not None
+            and abs(scene_ev - self._search_scene_ev) > self.params["restart_scene_ev"]
+        )
+
+    def _hold_drifted(self, score: float, mean: float) -> bool:
+        if self._badly_exposed(mean):
+            return True
+        self._hold_scores.append(score)
+        n = self.params["hold_window"]
+        if len(self._hold_scores) < 2 * n:
+            return False
+        reference = float(np.median(self._hold_scores[:n]))
+        recent = float(np.median(self._hold_scores[-n:]))
+        limit = max(self.params["restart_abs_drift"], self.params["restart_rel_drift"] * abs(reference))
+        return abs(recent - reference) > limit
+
     def _badly_exposed(self, mean: float) -> bool:
         return mean < self.params["dark_mean"] or mean > self.params["bright_mean"]
 
@@ -253,9 +267,9 @@ class ShinController(Controller):
             try:
                 self._pending = self._search.send(f_now)
             except StopIteration as done:
-                best_x, best_f = done.value
+                best_x, _ = done.value
                 self._search, self._pending = None, None
-                self._hold, self._hold_score = best_x, -best_f
+                self._hold, self._hold_scores = best_x, []
                 self._command = to_settings(best_x)
                 return
         self._command = to_settings(self._pending)
