@@ -90,14 +90,16 @@ def _write_outputs(cfg, tracker, result, sets, model_cfg, train_cfg, seed) -> No
     model_path = _path(cfg["paths"]["model"])
     onnx_path = model_path.with_suffix(".onnx")
     report_path = _path(cfg["paths"]["reports_dir"]) / "train.json"
+    ckpt = checkpoint_dict(result, model_cfg, train_cfg, sets["train"].store_hw, seed)
+    ckpt["history"] = result.history  # per-epoch metrics (also in MLflow); train.json stays flat for `dvc metrics`
     with atomic_path(model_path, suffix=".pt") as tmp:
-        torch.save(checkpoint_dict(result, model_cfg, train_cfg, sets["train"].store_hw, seed), tmp)
+        torch.save(ckpt, tmp)
     export_onnx(result.model, onnx_path, train_cfg.onnx_exporter)
     onnx_err = _onnx_agreement(onnx_path, sets["validation"], result.model)
     if not onnx_err < 1e-4:
         raise RuntimeError(f"{onnx_path}: ONNX outputs differ from torch by {onnx_err:.2e} (> 1e-4)")
     m = {**m, "onnx_max_abs_diff": onnx_err}
-    write_json({"metrics": m, "history": result.history}, report_path)
+    write_json(m, report_path)
     # "final." keeps these apart from the per-epoch series of the same names
     tracker.log_metrics({f"final.{k}": float(v) for k, v in m.items()})
     for p in (model_path, onnx_path, report_path):

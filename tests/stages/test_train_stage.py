@@ -54,14 +54,15 @@ def test_stage_writes_model_onnx_report_and_logs_to_mlflow(tmp_path, mlflow_stor
     assert ckpt["input_hw"] == [32, 32] and ckpt["store_hw"] == [32, 32]
     assert (tmp_path / "models" / "controller.onnx").exists()
     report = json.loads((tmp_path / "reports" / "train.json").read_text())
-    assert report["metrics"]["onnx_max_abs_diff"] < 1e-4
-    assert len(report["history"]) == report["metrics"]["epochs_run"] == 3
+    assert report["onnx_max_abs_diff"] < 1e-4
+    assert len(ckpt["history"]) == report["epochs_run"] == 3
+    assert report["val_loss"] == pytest.approx(min(h["val_loss"] for h in ckpt["history"]))
     client = mlflow.tracking.MlflowClient(mlflow_store)
     hist = client.get_metric_history(run_id, "val_loss")
     assert [h.step for h in hist] == [0, 1, 2]
     data = client.get_run(run_id).data
     assert "final.baseline_val_exposure_mae_ev" in data.metrics and "final.improvement_gain_db" in data.metrics
-    assert data.metrics["final.val_loss"] == pytest.approx(report["metrics"]["val_loss"])
+    assert data.metrics["final.val_loss"] == pytest.approx(report["val_loss"])
     exp = client.get_run(run_id).info.experiment_id
     models = mlflow.search_logged_models(experiment_ids=[exp], filter_string=f"source_run_id = '{run_id}'",
                                          output_format="list")
