@@ -151,3 +151,21 @@ def test_intrinsics_matrix_from_sequence_yaml():
     assert K_half[0, 0] == 250 and K_half[0, 2] == pytest.approx(159.5) and K_half[1, 2] == pytest.approx(119.5)
     with pytest.raises(InputError, match="fx"):
         intrinsics_matrix({"fy": 1, "cx": 1, "cy": 1})
+
+
+def test_distant_points_count_as_tracked():
+    """Points 40–120 m away seen from 0.41 m apart (beyond recoverPose's 50-baseline triangulation cut-off) are
+    still consistent with the motion and must count: slow driving on an open road is not 'lost'."""
+    rng = np.random.default_rng(4)
+    n = 150
+    pts = np.column_stack([rng.uniform(-40, 40, n), rng.uniform(-20, 5, n), rng.uniform(40, 120, n)])
+    T1, T2 = _pose(0), _pose(0.5)
+
+    def project(T_wc):
+        T_cw = np.linalg.inv(T_wc)
+        pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
+        return [cv2.KeyPoint(float(F * x / z + W / 2), float(F * y / z + H / 2), 7) for x, y, z in pc]
+
+    desc = rng.integers(0, 256, (n, 32)).astype(np.uint8)
+    _, n_inl, _, _ = relative_pose(project(T1), desc, project(T2), desc, K, 1.0, 0.999, 0)
+    assert n_inl >= 0.95 * n

@@ -2,8 +2,8 @@
 
 Per consecutive pair: ORB features (OpenCV), brute-force Hamming matching with cross-check, essential matrix by
 RANSAC (cv2.findEssentialMat, known intrinsics K), relative pose by cv2.recoverPose. The tracked-inlier count of a
-pair is the number of RANSAC inliers that also pass recoverPose's cheirality check (points in front of both
-cameras). A run FAILS at the first frame whose pair with the previous frame has fewer than `min_inliers` tracked
+pair is the number of matches consistent with the essential matrix (RANSAC inliers, `ransac_threshold_px`).
+A run FAILS at the first frame whose pair with the previous frame has fewer than `min_inliers` tracked
 inliers (ORB-SLAM2 loses track below roughly 15–20 matches); counts are still computed for every later pair so the
 whole run can be plotted, but the trajectory stops being meaningful there.
 
@@ -67,7 +67,7 @@ def _grey(image: np.ndarray, index: int) -> np.ndarray:
 def relative_pose(
     prev_kp, prev_desc, cur_kp, cur_desc, K: np.ndarray, ransac_threshold_px: float, prob: float, seed: int
 ) -> tuple[int, int, np.ndarray | None, np.ndarray | None]:
-    """(n_matches, n_tracked_inliers, R, t) for one pair; R, t map points from the previous camera's frame into
+    """(n_matches, n_essential_inliers, R, t) for one pair; R, t map points from the previous camera's frame into
     the current one (x_cur = R·x_prev + t, |t| = 1); None when no pose could be estimated."""
     if prev_desc is None or cur_desc is None or len(prev_kp) < 5 or len(cur_kp) < 5:
         return 0, 0, None, None
@@ -81,8 +81,10 @@ def relative_pose(
     if E is None or mask is None or E.shape[0] < 3:
         return len(matches), 0, None, None
     E = E[:3]  # several solutions come stacked (3k × 3); the mask belongs to the first
-    n_tracked, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=mask.copy())
-    return len(matches), int(n_tracked), R, t.ravel()
+    _, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=mask.copy())
+    # tracked = RANSAC inliers of E. Not recoverPose's count: it also drops points triangulated beyond 50 baselines,
+    # i.e. beyond ~30 m at 30 km/h and 15 Hz, which would call a slow car on an open road "lost".
+    return len(matches), int(np.count_nonzero(mask)), R, t.ravel()
 
 
 def track_sequence(

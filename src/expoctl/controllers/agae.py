@@ -119,7 +119,7 @@ class AgAeController(Controller):
     def reset(self, initial: Settings) -> None:
         s = initial.clamped()
         self._ln_p = float(np.clip(self._ln_product(s), self._ln_p_min, self._ln_p_max))
-        self._pending: deque[tuple[float, float]] = deque()  # (ln P*, frame) measured but not yet acted on
+        self._pending: deque[float] = deque()  # ln P* of frames metered but not yet acted on (internal latency)
 
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
         self._pending.append(self._ideal_ln_product(image, applied))
