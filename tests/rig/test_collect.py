@@ -85,14 +85,18 @@ def test_tiny_collect_is_valid_raw_data(tiny_run):
 def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
     out, _ = tiny_run
     cfg = tiny(city_dir)
-    cfg["collect"]["splits"]["validation"] = None
+    cfg["collect"]["n_jobs"] = 2  # the process pool gives the same bytes as the in-process run
     again = tmp_path / "again"
     collect(cfg, again, progress=False)
-    a, b = out / "train" / "train-small-t000", again / "train" / "train-small-t000"
-    assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
-    assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
-    for p in sorted((a / "cam2").iterdir()):
-        assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
+    for seq in ("train/train-small-t000", "validation/validation-small-t005"):
+        a, b = out / seq, again / seq
+        assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
+        assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
+        for p in sorted((a / "cam2").iterdir()):
+            assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
+    a = out / "train" / "train-small-t000"
+    cfg["collect"]["n_jobs"] = 1
+    cfg["collect"]["splits"]["validation"] = None
     cfg["seed"] = 4
     other = tmp_path / "other"
     collect(cfg, other, progress=False)

@@ -41,8 +41,10 @@ def test_annotation_draws_text_in_the_corner_only():
     stamped = annotate(f.image, f)
     diff = np.any(stamped != f.image, axis=2)
     ys, xs = np.nonzero(diff)
-    assert diff.sum() > 50  # text was drawn
-    assert ys.max() < 32 and xs.min() < 10  # top-left corner
+    assert ys.max() < 40 and xs.min() < 10 and xs.max() < f.image.shape[1]  # only the top-left box changed
+    box = stamped[: ys.max() + 1, : xs.max() + 1]
+    assert (box.max(axis=2) > 200).sum() > 30  # bright text on it
+    assert (box.max(axis=2) < 30).sum() > 100  # on a darkened background (60 → 24)
     assert np.array_equal(f.image, frames_with_exit()[0].image)  # input untouched
 
 
@@ -97,3 +99,10 @@ def test_video_has_every_frame(tmp_path):
         levels.append(float(img[30:, :].mean()))  # below the text
     assert n == len(frames) and cap.get(cv2.CAP_PROP_FPS) == 15.0
     assert abs(levels[10] - 60) < 8 and abs(levels[22] - 255) < 8 and abs(levels[35] - 120) < 8
+
+
+def test_transition_rows_follow_portal_crossings():
+    frames = frames_with_exit()
+    rows = _select(frames, SECTIONS, "transitions", columns=6, max_rows=4, portal_frames=[20], fps=10.0)
+    # 1 s before to 1.5 s after the crossing at frame 20, at 10 frames/s: frames 10 … 35
+    assert [[frames[p].frame_index for p in r] for r in rows] == [[10, 15, 20, 25, 30, 35]]

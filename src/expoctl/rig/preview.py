@@ -1,6 +1,6 @@
 """`expoctl preview`: drive one simulated camera over a route with a controller and save a contact sheet for a look.
 
-The sheet has one row per tunnel transition (frames spread over the `dynamic` section, so an entry and an exit
+The sheet has one row per tunnel portal crossing (frames from 1 s before to 1.5 s after it, so an entry and an exit
 each read left to right) — or evenly spaced frames with `--select uniform` — each thumbnail stamped with frame,
 gain, exposure and section; below it a timeline of the whole run: exposure value (EV of t·gain) commanded by the
 controller, mean image level, and the dynamic sections shaded. A lagging AE shows as mean level pinned at 255 (or
@@ -98,7 +98,9 @@ def run(args: argparse.Namespace) -> int:
 
     title = (f"{city.name} traversal {args.traversal}, controller {controller.name}, {render.width}x{render.height} "
              f"@ {rig.fps:g} Hz")
-    sheet = contact_sheet(frames, _select(frames, traj.sections, args.select, args.columns, args.rows),
+    portals = [int(round(t_s * rig.fps)) for t_s, _tunnel, _kind in getattr(traj, "portal_times_s", [])]
+    rows = _select(frames, traj.sections, args.select, args.columns, args.rows, portals, rig.fps)
+    sheet = contact_sheet(frames, rows,
                           args.columns, args.thumb_width, title)
     from expoctl.io import write_png
 
@@ -129,18 +131,21 @@ def _city_spec(city: str) -> str | dict:
 
 
 def annotate(image: np.ndarray, frame: PreviewFrame, scale: float = 1.0) -> np.ndarray:
-    """Stamp frame, gain, exposure and section into the top-left corner (white text with a black outline)."""
+    """Stamp frame, section, gain and exposure into the top-left corner, on a dark box so it reads on white."""
     import cv2
 
     out = np.ascontiguousarray(image.copy())
     lines = [f"#{frame.frame_index} {frame.section}",
              f"{frame.settings.gain_db:.1f} dB {frame.settings.exposure_us / 1000.0:.2f} ms"]
-    fs = 0.38 * scale
+    fs = 0.4 * scale
+    step = int(round(14 * scale))
+    sizes = [cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)[0] for t in lines]
+    box_w = min(out.shape[1], max(w for w, _ in sizes) + 6)
+    box_h = min(out.shape[0], step * len(lines) + int(round(5 * scale)))
+    out[:box_h, :box_w] = (out[:box_h, :box_w].astype(np.uint16) * 2 // 5).astype(np.uint8)  # darken to 40 %
+    colour = (255, 210, 60) if frame.section == "dynamic" else (255, 255, 255)
     for i, text in enumerate(lines):
-        org = (3, int(round((12 + 13 * i) * scale)))
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, fs, (0, 0, 0), 3, cv2.LINE_AA)
-        colour = (255, 210, 60) if frame.section == "dynamic" else (255, 255, 255)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, fs, colour, 1, cv2.LINE_AA)
+        cv2.putText(out, text, (3, step * (i + 1)), cv2.FONT_HERSHEY_SIMPLEX, fs, colour, 1, cv2.LINE_AA)
     return out
 
 
@@ -164,7 +169,7 @@ def contact_sheet(frames: list[PreviewFrame], rows: list[list[int]], columns: in
 
 
 def timeline(frames: list[PreviewFrame], width_px: int, marks: list[int] = (), height_px: int = 220) -> np.ndarray:
-    """EV commanded and mean image level per frame, dynamic sections shaded, thumbnail frames ticked."""
+    """EV commanded, mean image level and saturated share per frame; dynamic sections shaded, thumbnails ticked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -173,21 +178,24 @@ def timeline(frames: list[PreviewFrame], width_px: int, marks: list[int] = (), h
     idx = np.array([f.frame_index for f in frames])
     ev = exposure_value_ev([f.settings.gain_db for f in frames], [f.settings.exposure_us for f in frames])
     level = np.array([float(f.image.mean()) for f in frames])
+    # share of pixels clipped white in any channel: overexposure after a tunnel exit shows here, not in the mean
+    saturated_pct = np.array([100.0 * float(np.mean(f.image.max(axis=2) >= 250)) for f in frames])
     dpi = 100
     fig, ax = plt.subplots(figsize=(width_px / dpi, height_px / dpi), dpi=dpi)
     dyn = np.array([f.section == "dynamic" for f in frames])
     for a, b in _runs(dyn):
         ax.axvspan(idx[a] - 0.5, idx[b] + 0.5, color="0.85", lw=0)
     ax.plot(idx, level, color="tab:orange", lw=1.2, label="mean image level (0–255)")
+    ax.plot(idx, saturated_pct, color="tab:red", lw=1.0, label="saturated pixels (%)")
     ax.set_ylim(0, 260)
-    ax.set_ylabel("level", color="tab:orange")
+    ax.set_ylabel("level / %")
     ax.set_xlabel("frame (grey: dynamic sections; ticks: thumbnails)")
     for m in marks:
         ax.axvline(m, ymin=0, ymax=0.04, color="k", lw=0.8)
     ax2 = ax.twinx()
     ax2.plot(idx, ev, color="tab:blue", lw=1.2, label="EV = log2(t·gain) commanded")
     ax2.set_ylabel("EV", color="tab:blue")
-    lines = ax.get_lines()[:1] + ax2.get_lines()
+    lines = ax.get_lines()[:2] + ax2.get_lines()
     ax.legend(lines, [ln.get_label() for ln in lines], loc="upper right", fontsize=7, framealpha=0.8)
     ax.set_xlim(idx[0] - 0.5, idx[-1] + 0.5)
     fig.tight_layout(pad=0.3)
@@ -221,13 +229,19 @@ def write_video(frames: list[PreviewFrame], path: Path, fps: float) -> None:
 # --- selection ------------------------------------------------------------------------------------------------------
 
 
-def _select(frames: list[PreviewFrame], sections: list[dict], how: str, columns: int, max_rows: int) -> list[list[int]]:
-    """Rows of positions in `frames` to show."""
+def _select(frames: list[PreviewFrame], sections: list[dict], how: str, columns: int, max_rows: int,
+            portal_frames: list[int] = (), fps: float = 15.0) -> list[list[int]]:
+    """Rows of positions in `frames` to show. Transitions: one row per portal crossing, from 1 s before to 1.5 s
+    after it (where an AE lags); without crossing times, one row spread over each dynamic section."""
     pos_of = {f.frame_index: i for i, f in enumerate(frames)}
     rows: list[list[int]] = []
     if how == "transitions":
-        for s in sorted((s for s in sections if s["kind"] == "dynamic"), key=lambda s: s["start_frame"]):
-            inside = [pos_of[i] for i in range(int(s["start_frame"]), int(s["end_frame"]) + 1) if i in pos_of]
+        spans = [(c - int(round(1.0 * fps)), c + int(round(1.5 * fps))) for c in sorted(portal_frames)]
+        if not spans:
+            spans = [(int(s["start_frame"]), int(s["end_frame"]))
+                     for s in sorted(sections, key=lambda s: s["start_frame"]) if s["kind"] == "dynamic"]
+        for a, b in spans:
+            inside = [pos_of[i] for i in range(a, b + 1) if i in pos_of]
             if len(inside) >= 2:
                 rows.append(_spread(inside, columns))
             if len(rows) == max_rows:
