@@ -3,7 +3,8 @@
 A city config is a plain nested dict (schema documented in conf/world/cities/train.yaml). Three names ship:
 `train` (closed rectangular route with two ~80 m box tunnels), `validation` (the same city — geometry, textures and
 lamps — driven under other traversal conditions: sun, sky, speed, seeds) and `test` (another city: a long curved arch
-tunnel plus a short underpass, other textures/photo crops, lamps, cross-section, and disjoint seeds).
+tunnel plus a short underpass, other textures/photo crops, lamps, cross-section, and disjoint seeds), and `stress`
+(the test city under low sun or dark overcast).
 
 Every value is validated before any geometry or texture is built; a bad value raises
 `ConfigError("world.city.<dotted key>", ...)` naming the key.
@@ -153,7 +154,19 @@ _TEST: dict[str, Any] = {
     },
 }
 
-CITY_NAMES = ("train", "validation", "test")
+_STRESS_OVERRIDE: dict[str, Any] = {
+    # the test city under hard light: low sun (often in view at exits or shining into entries) or dark overcast
+    "name": "stress",
+    "traversal": {
+        "seed": 9977,
+        "sun_elevation_deg": [3.0, 12.0],
+        "sun_illuminance_lux": [30000.0, 70000.0],
+        "overcast_probability": 0.4,
+        "sky_zenith_cd_m2": [1500.0, 5000.0],
+    },
+}
+
+CITY_NAMES = ("train", "validation", "test", "stress")
 MATERIALS = ("road", "sidewalk", "verge", "facade_a", "facade_b", "wall", "hedge", "tunnel_wall", "tunnel_ceiling",
              "portal", "hill", "roof", "pole", "sign")
 ROADSIDE_KINDS = ("facade_a", "facade_b", "wall", "hedge", "none")
@@ -178,6 +191,8 @@ def packaged_city(name: str) -> dict:
         return deep_merge(_TRAIN, _VALIDATION_OVERRIDE)
     if name == "test":
         return copy.deepcopy(_TEST)
+    if name == "stress":
+        return deep_merge(_TEST, _STRESS_OVERRIDE)
     raise ConfigError("world.city", f"unknown city {name!r}; known cities: {', '.join(CITY_NAMES)} (or pass a dict)")
 
 

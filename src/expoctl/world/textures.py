@@ -125,22 +125,22 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
         g = 1 + 0.3 * _photo("gravel", crop, n, texel_m, rng, 3.0) + 0.2 * coarse
     elif kind in ("facade_a", "facade_b"):
         if kind == "facade_a":
-            g = 1 + 0.35 * _photo("brick", crop, n, texel_m, rng, 1.0) + 0.1 * mid + 0.15 * coarse
+            g = 1 + 0.22 * _photo("brick", crop, n, texel_m, rng, 1.0) + 0.05 * mid + 0.1 * coarse
             tint = rng.uniform(0.8, 1.2, 3).astype(np.float32) * np.array([1.15, 0.9, 0.8])
         else:
-            g = 1 + 0.1 * fine + 0.12 * mid + 0.2 * coarse
-            _joints(g, _random_cuts(rng, n, 1.8 * m, 3.6 * m), 1, 3, 0.5)
+            g = 1 + 0.04 * fine + 0.05 * mid + 0.1 * coarse
+            _joints(g, _random_cuts(rng, n, 1.8 * m, 3.6 * m), 1, 3, 0.6)
             _joints(g, np.arange(0, n, 3.2 * m), 0, 3, 0.5)
             tint = rng.uniform(0.85, 1.15, 3).astype(np.float32)
         g = np.repeat(g[:, :, None], 3, axis=2)
         # windows: storeys every ~3.2 m from 3.5 m up, random widths/pitches, dark glass with sky reflections
-        pitch = rng.uniform(2.4, 4.0) * m
+        pitch = rng.uniform(3.0, 5.0) * m
         win_w = rng.uniform(0.35, 0.6) * pitch
         for storey in range(1, int(n / (3.2 * m))):
             y0 = int((storey * 3.2 + 0.9) * m)
             y1 = min(n, y0 + int(rng.uniform(1.3, 1.8) * m))
             for x0 in np.arange(rng.uniform(0, pitch), n - win_w, pitch):
-                if rng.random() < 0.1:
+                if rng.random() < 0.4:  # not every bay has a window: fewer, irregular corners
                     continue
                 glass = rng.uniform(0.08, 0.6) + 0.1 * mid[y0:y1, int(x0):int(x0 + win_w)]
                 g[y0:y1, int(x0):int(x0 + win_w)] = glass[..., None] * np.array([0.8, 0.9, 1.1])
@@ -149,11 +149,11 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
                 g[y0:y1, int(x0):int(x0) + 4] = 1.6
                 g[y0:y1, int(x0 + win_w) - 4:int(x0 + win_w)] = 1.6
         # shop fronts / posters / signs at street level
-        _rects(rng, g, int(n / m / 3), (0.6 * m, 2.5 * m), (0.4 * m, 1.6 * m), (0.4 * m, 2.4 * m), _poster(rng, True))
+        _rects(rng, g, int(n / m / 6), (0.6 * m, 2.5 * m), (0.4 * m, 1.6 * m), (0.4 * m, 2.4 * m), _poster(rng, True))
         return np.clip(g * tint / max(1e-6, float((g * tint).mean())), 0.05, 4.0).astype(np.float32)
     elif kind == "wall":
-        g = 1 + 0.1 * _photo("gravel", crop, n, texel_m, rng, 4.0) + 0.12 * fine + 0.15 * mid + 0.25 * coarse
-        _joints(g, _random_cuts(rng, n, 2.0 * m, 5.0 * m), 1, 3, 0.45)
+        g = 1 + 0.08 * _photo("gravel", crop, n, texel_m, rng, 4.0) + 0.05 * fine + 0.08 * mid + 0.15 * coarse
+        _joints(g, _random_cuts(rng, n, 2.0 * m, 5.0 * m), 1, 3, 0.5)
         g = np.repeat(g[:, :, None], 3, axis=2)
         _rects(rng, g, int(n / m / 4), (0.5 * m, 2.0 * m), (0.3 * m, 1.2 * m), (0.3 * m, 1.8 * m), _poster(rng, True))
         return np.clip(g / g.mean(), 0.05, 4.0).astype(np.float32)
