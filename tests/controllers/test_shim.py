@@ -37,7 +37,7 @@ def test_dark_scene_raises_and_bright_scene_lowers_exposure(variant):
 
 
 def test_2018_update_rule_is_exact():
-    c = ShimController({"variant": "2018", "k_p": 0.4, "f_number": 2.0})
+    c = ShimController({"variant": "2018", "k_p": 0.4, "f_number": 2.0, "alpha_darken": 0.5})
     s = Settings(0.0, 5000.0)
     assert c._step(1.0, s).exposure_us == pytest.approx(5000.0)  # R(1) = 1: no change
     d, g = 0.1, 1.9  # γ̂ = 1.9 in Mehta's convention asks for a brighter image (α = 1)
@@ -52,7 +52,7 @@ def test_2018_update_rule_is_exact():
 
 
 def test_2014_update_rule_is_exact_and_gain_takes_over_at_the_exposure_limit():
-    c = ShimController({"variant": "2014", "k_p": 0.2})
+    c = ShimController({"variant": "2014", "k_p": 0.2, "alpha_darken": 0.5})
     assert c._step(0.5, Settings(0.0, 1000.0)).exposure_us == pytest.approx(1000.0 * (1 + 0.2 * 0.5))
     assert c._step(1.5, Settings(0.0, 1000.0)).exposure_us == pytest.approx(1000.0 * (1 + 0.5 * 0.2 * -0.5))
     out = c._step(0.1, Settings(0.0, 30000.0))
@@ -93,3 +93,15 @@ def test_bad_config(params, key):
     with pytest.raises(ConfigError) as e:
         ShimController(params)
     assert e.value.key == key
+
+
+def test_polynomial_maximiser_between_samples_and_fallback_to_the_best_sample():
+    c = ShimController()
+    grey = np.full((8, 8), 100, np.uint8)
+    # smooth bowl peaking between the samples 1.2 and 1.5: the fit finds the peak itself
+    c.scores = lambda g: -((c.gammas - 1.33) ** 2)
+    assert c.best_gamma(grey) == pytest.approx(1.33, abs=0.01)
+    # a single spike: a degree-5 fit through 7 points cannot reach it, so γ̂ is the best sample exactly
+    c.scores = lambda g: np.array([0, 0, 0, 1.0, 0, 0, 0])
+    spike_fit_max = np.polyval(np.polyfit(c.gammas, c.scores(None), 5), np.linspace(1 / 1.9, 1.9, 721)).max()
+    assert spike_fit_max < 1.0 and c.best_gamma(grey) == 1.0

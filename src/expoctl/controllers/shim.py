@@ -9,11 +9,14 @@ maps I → I^γ (γ < 1 brightens). Here each variant keeps its source's convent
 makes it explicit; `test_shim.py` checks that both brighten a dark scene.
 
 variant "2018" (default; Mehta, aer_auto_exposure_gradient), convention I^(1/γ), Γ = {1/1.9, 1/1.5, 1/1.2, 1, 1.2, 1.5, 1.9}:
-  fit a 5th-order polynomial M(γ), take its maximiser γ̂ in [min Γ, max Γ] (best sample if the fit is not finite);
+  fit a 5th-order polynomial M(γ), take its maximiser γ̂ in [min Γ, max Γ]; the best sample instead when the fit is
+  not finite or the polynomial's maximum is below the best sampled M (as Mehta's code does);
   R = d·tan((2 − γ̂)·atan(1/d) − atan(1/d)) + 1, d = 0.1; EV ← (1 + α·K_p·(R − 1))·EV, EV = log2(N²/(t·2^(g/6))).
 variant "2014" (Zhang's implementation), convention I^γ, Γ = {0.1, 0.5, 0.8, 1, 1.2, 1.5, 1.9}:
   γ̂ = best sample; t·gain ← t·gain·(1 + α·K_p·(1 − γ̂)).
-α = `alpha_brighten` (1) when the update brightens, `alpha_darken` (0.5) when it darkens (Shim 2014's asymmetry).
+α = `alpha_brighten` when the update brightens, `alpha_darken` when it darkens. Mehta's code uses 1 for both (our
+default); Shim's 2014 paper darkens at half speed (alpha_darken 0.5, use it with variant "2014").
+EV uses N = `f_number` (Mehta: 2.8, N² = 7.84); with the multiplicative EV update, N scales the step size.
 The new exposure product is split exposure-first: exposure in [exposure_lower_us, exposure_upper_us] with gain 0;
 only beyond the upper limit does gain take the rest (Mehta: gain += 6·ΔEV while clamped, else 0 — identical
 when the exposure was already clamped; ours is exact when it reaches the limit within the step).
@@ -43,8 +46,8 @@ DEFAULTS: dict = {
     "k_p": 0.4,  # Mehta header (0.25 in its local.yaml); Zhang's 2014 uses 0.2 — set per variant in config
     "d": 0.1,  # 2018 R-curve shape
     "alpha_brighten": 1.0,
-    "alpha_darken": 0.5,
-    "f_number": 2.0,  # N in EV = log2(N²/(t·2^(g/6))); the 2018 update scales EV multiplicatively, so N matters
+    "alpha_darken": 1.0,
+    "f_number": 2.8,  # N in EV = log2(N²/(t·2^(g/6))); the 2018 update scales EV multiplicatively, so N matters
     "poly_order": 5,
     "process_every_n_frames": 2,
     "exposure_lower_us": 100.0,  # Mehta clamps to [100 µs, min(1/fps, 32.754 ms)]
@@ -132,7 +135,8 @@ class ShimController(Controller):
         fit = np.polyval(coef, grid)
         if not np.all(np.isfinite(fit)):
             return best_sample
-        return float(grid[int(np.argmax(fit))])
+        i = int(np.argmax(fit))
+        return float(grid[i]) if fit[i] >= m.max() else best_sample
 
     def _step(self, gamma_hat: float, applied: Settings) -> Settings:
         p = self.params
