@@ -235,7 +235,7 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     if ecfg.render_size is not None:
         render = render.with_size(*ecfg.render_size)
     city = _load_city_cached(w.city, w.city_dir)
-    traj = city.traversal(w.traversal, w.traversal_frames, rig.fps, w.traversal_seed)
+    traj = _traversal_cached(city, w, rig.fps)
     scene = RouteScene(city, traj, rig, render)
     sensors, _ = make_sensors(cfg.get("sensor"), render, 1, ecfg.sensor_randomisation, w.seed)
     warmup = ecfg.warmup_frames
@@ -270,6 +270,20 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
         summary["oracle_ms_median"] = float(np.median(controller.timings_ms)) if controller.timings_ms else np.nan
         summary["oracle_renders"] = int(scene.n_renders)
     return rows, summary, thumbs
+
+
+_TRAJ_CACHE: dict[tuple, Any] = {}
+
+
+def _traversal_cached(city, w: Window, fps: float):
+    """One trajectory per (city, traversal, length, fps, seed) per process: every controller of a window reuses it
+    (two laps of poses take seconds to compute). Controllers never modify it."""
+    key = (id(city), w.traversal, w.traversal_frames, fps, w.traversal_seed)
+    if key not in _TRAJ_CACHE:
+        if len(_TRAJ_CACHE) >= 4:
+            _TRAJ_CACHE.clear()
+        _TRAJ_CACHE[key] = city.traversal(w.traversal, w.traversal_frames, fps, w.traversal_seed)
+    return _TRAJ_CACHE[key]
 
 
 def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = False) -> EvaluationResult:
