@@ -174,3 +174,14 @@ def test_shared_render_serves_second_camera(train):
     assert len(r._cache) == 1  # one render served both cameras
     ref2 = r.render_exposure(traj, 5, 30000.0, camera_offset_m=0.0392, method="reference") @ Y_RGB
     assert float(np.mean(np.abs(np.log1p(cam2) - np.log1p(ref2)))) < 0.07
+
+
+def test_render_cache_never_mixes_trajectories(train):
+    import pickle
+    city, traj, r = train
+    other = city.traversal(7, 60, fps=15.0, seed=3)
+    other.conditions = traj.conditions  # same lighting: only the cache key can tell them apart
+    a = r.render_exposure(traj, 4, 20000.0)
+    b = r.render_exposure(other, 4, 20000.0)
+    assert not np.allclose(a, b)
+    assert len(pickle.dumps(other)) < 2_000_000  # trajectories (with their city) stay small to send to workers

@@ -11,6 +11,7 @@ Conventions
 from __future__ import annotations
 
 import math
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -60,6 +61,7 @@ class Trajectory:
     portal_times_s: list  # [(time_s, tunnel index, "entry"|"exit")]
     conditions: Conditions
     _city: "City" = field(repr=False, default=None)
+    uid: str = field(default_factory=lambda: uuid.uuid4().hex)  # identifies this trajectory in render caches
 
     def s_at(self, time_s):
         """Arc length along the route (m, wrapped) at time t (s since the trajectory start)."""
@@ -89,7 +91,6 @@ class City:
         road = cfg["road"]
         self.lane_offset_m = -road["lanes"] * road["lane_width_m"] / 2 + (road["lane_of_travel"] + 0.5) * road[
             "lane_width_m"]
-        self._atlas = None
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -101,10 +102,10 @@ class City:
         return [(float(t["start_m"]), float(t["start_m"]) + float(t["length_m"])) for t in self.cfg["tunnels"]]
 
     def texture_atlas(self):
-        if self._atlas is None:
-            from expoctl.world.textures import build_texture_atlas
-            self._atlas = build_texture_atlas(self.cfg)
-        return self._atlas
+        """Texture tiles + mip pyramids (cached per texture config in expoctl.world.textures, not on the city, so
+        cities and trajectories stay small to pickle)."""
+        from expoctl.world.textures import build_texture_atlas
+        return build_texture_atlas(self.cfg)
 
     def vibration(self, index: int, seed: int):
         """Per-traversal vibration spectrum: (freqs_hz (3, K), phases (3, K), amps_rad (3, K)) for pitch, roll, yaw."""

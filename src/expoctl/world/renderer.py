@@ -262,8 +262,8 @@ class Renderer:
         # Render once at mid-exposure and smear each pixel along its flow to the exposure's start and end poses.
         # With share_render (optional) one sharp render per frame serves both cameras and every exposure: the flow
         # from the cached render's pose to this camera's start/end poses also carries the 3.92 cm stereo parallax.
-        key = (id(trajectory), frame_index) if self.share_render else (
-            id(trajectory), frame_index, float(camera_offset_m), float(exposure_us))
+        key = (trajectory.uid, frame_index) if self.share_render else (
+            trajectory.uid, frame_index, float(camera_offset_m), float(exposure_us))
         if key not in self._cache:
             if len(self._cache) > 8:
                 self._cache.clear()

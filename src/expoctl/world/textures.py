@@ -25,13 +25,14 @@ _PHOTO_TEXEL_M = {"brick": 0.004, "gravel": 0.0025, "grass": 0.003}
 
 def _noise(rng: np.random.Generator, n: int, beta: float, min_period_px: float = 2.0, max_period_px: float | None = None):
     """Periodic (tileable) noise with a 1/f^beta amplitude spectrum, zero mean and unit std."""
-    fx = np.fft.fftfreq(n)
-    f = np.sqrt(fx[:, None] ** 2 + fx[None, :] ** 2)
-    amp = np.zeros_like(f)
+    fy = np.fft.fftfreq(n).astype(np.float32)
+    fx = np.fft.rfftfreq(n).astype(np.float32)
+    f = np.sqrt(fy[:, None] ** 2 + fx[None, :] ** 2)
     band = (f >= (1.0 / max_period_px if max_period_px else 0.0)) & (f <= 1.0 / min_period_px) & (f > 0)
+    amp = np.zeros_like(f)
     amp[band] = f[band] ** (-beta)
-    phase = rng.uniform(0, 2 * np.pi, f.shape)
-    img = np.real(np.fft.ifft2(amp * np.exp(1j * phase)))
+    phase = rng.uniform(0, 2 * np.pi, f.shape).astype(np.float32)
+    img = np.fft.irfft2(amp * (np.cos(phase) + 1j * np.sin(phase)), s=(n, n))
     return ((img - img.mean()) / (img.std() + 1e-12)).astype(np.float32)
 
 
@@ -197,7 +198,21 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
     return (g / g.mean()).astype(np.float32)
 
 
+_ATLAS_CACHE: dict = {}
+
+
 def build_texture_atlas(cfg: dict):
+    """Cached per texture config (cities sharing textures, e.g. train and validation, share one atlas)."""
+    tex = cfg["textures"]
+    key = (int(tex["seed"]), str(tex["photo_crop"]), int(tex["tile_px"]), float(tex["texel_m"]))
+    if key not in _ATLAS_CACHE:
+        if len(_ATLAS_CACHE) >= 3:
+            _ATLAS_CACHE.clear()
+        _ATLAS_CACHE[key] = _build_texture_atlas(cfg)
+    return _ATLAS_CACHE[key]
+
+
+def _build_texture_atlas(cfg: dict):
     """All material tiles with mip pyramids, flattened for the ray caster.
 
     Returns (texels uint8 flat, level_offset int64 (M, L), level_size int64 (M, L), scale float32 (M,)) where a tile
