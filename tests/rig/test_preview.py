@@ -100,9 +100,3 @@ def test_video_has_every_frame(tmp_path):
     assert n == len(frames) and cap.get(cv2.CAP_PROP_FPS) == 15.0
     assert abs(levels[10] - 60) < 8 and abs(levels[22] - 255) < 8 and abs(levels[35] - 120) < 8
 
-
-def test_transition_rows_follow_portal_crossings():
-    frames = frames_with_exit()
-    rows = _select(frames, SECTIONS, "transitions", columns=6, max_rows=4, portal_frames=[20], fps=10.0)
-    # 1 s before to 1.5 s after the crossing at frame 20, at 10 frames/s: frames 10 … 35
-    assert [[frames[p].frame_index for p in r] for r in rows] == [[10, 15, 20, 25, 30, 35]]

@@ -1,7 +1,7 @@
 """`expoctl preview`: drive one simulated camera over a route with a controller and save a contact sheet for a look.
 
-The sheet has one row per tunnel portal crossing (frames from 1 s before to 1.5 s after it, so an entry and an exit
-each read left to right) — or evenly spaced frames with `--select uniform` — each thumbnail stamped with frame,
+The sheet has one row per tunnel transition (frames spread over the `dynamic` section around a portal crossing, so
+an entry and an exit each read left to right) — or evenly spaced frames with `--select uniform` — each thumbnail stamped with frame,
 gain, exposure and section; below it a timeline of the whole run: exposure value (EV of t·gain) commanded by the
 controller, mean image level, and the dynamic sections shaded. A lagging AE shows as mean level pinned at 255 (or
 near 0) for several frames after a portal while EV catches up. `--video` also writes every frame as an MP4.
@@ -98,13 +98,10 @@ def run(args: argparse.Namespace) -> int:
 
     title = (f"{city.name} traversal {args.traversal}, controller {controller.name}, {render.width}x{render.height} "
              f"@ {rig.fps:g} Hz")
-    portals = [int(round(t_s * rig.fps)) for t_s, _tunnel, _kind in getattr(traj, "portal_times_s", [])]
-    rows = _select(frames, traj.sections, args.select, args.columns, args.rows, portals, rig.fps)
+    rows = _select(frames, traj.sections, args.select, args.columns, args.rows)
     sheet = contact_sheet(frames, rows,
                           args.columns, args.thumb_width, title)
-    from expoctl.io import write_png
-
-    write_png(sheet, args.out)
+    _write_png_small(sheet, args.out)
     print(f"wrote {args.out} ({sheet.shape[1]}x{sheet.shape[0]}, {len(frames)} frames rendered)")
     if args.video is not None:
         write_video(frames, args.video, rig.fps)
@@ -209,6 +206,19 @@ def timeline(frames: list[PreviewFrame], width_px: int, marks: list[int] = (), h
     return img
 
 
+def _write_png_small(image: np.ndarray, path: Path) -> None:
+    """RGB PNG at the strongest zlib level (sensor noise makes sheets compress poorly; they go into docs)."""
+    import cv2
+
+    from expoctl.io import atomic_path
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    if not ok:
+        raise OSError(f"could not encode PNG for {path}")
+    with atomic_path(path, suffix=".png") as tmp:
+        tmp.write_bytes(buf.tobytes())
+
+
 def write_video(frames: list[PreviewFrame], path: Path, fps: float) -> None:
     import cv2
 
@@ -229,19 +239,14 @@ def write_video(frames: list[PreviewFrame], path: Path, fps: float) -> None:
 # --- selection ------------------------------------------------------------------------------------------------------
 
 
-def _select(frames: list[PreviewFrame], sections: list[dict], how: str, columns: int, max_rows: int,
-            portal_frames: list[int] = (), fps: float = 15.0) -> list[list[int]]:
-    """Rows of positions in `frames` to show. Transitions: one row per portal crossing, from 1 s before to 1.5 s
-    after it (where an AE lags); without crossing times, one row spread over each dynamic section."""
+def _select(frames: list[PreviewFrame], sections: list[dict], how: str, columns: int, max_rows: int) -> list[list[int]]:
+    """Rows of positions in `frames` to show: one row spread over each dynamic section (a portal crossing ±2 s: the
+    approach, the crossing and the adaptation after it), or evenly spaced frames."""
     pos_of = {f.frame_index: i for i, f in enumerate(frames)}
     rows: list[list[int]] = []
     if how == "transitions":
-        spans = [(c - int(round(1.0 * fps)), c + int(round(1.5 * fps))) for c in sorted(portal_frames)]
-        if not spans:
-            spans = [(int(s["start_frame"]), int(s["end_frame"]))
-                     for s in sorted(sections, key=lambda s: s["start_frame"]) if s["kind"] == "dynamic"]
-        for a, b in spans:
-            inside = [pos_of[i] for i in range(a, b + 1) if i in pos_of]
+        for s in sorted((s for s in sections if s["kind"] == "dynamic"), key=lambda s: s["start_frame"]):
+            inside = [pos_of[i] for i in range(int(s["start_frame"]), int(s["end_frame"]) + 1) if i in pos_of]
             if len(inside) >= 2:
                 rows.append(_spread(inside, columns))
             if len(rows) == max_rows:
