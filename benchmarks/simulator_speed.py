@@ -3,7 +3,8 @@
 Usage: .venv/bin/python benchmarks/simulator_speed.py [--frames 12] [--width 640] [--height 480] [--threads 0]
 Prints a table of medians over frames and writes benchmarks/results/simulator_speed.json.
 Frames are spread over the training city's whole route (open road, portals, tunnel interior), so the numbers mix
-scene types the way a traversal does. Each stage is timed per camera-frame; `total` = blurred render + sensor.
+scene types the way a traversal does. Each stage is timed per camera-frame (wall clock; the CPU-time rows show the
+cost independent of other users of the machine); `total` = blurred render + sensor.
 """
 
 from __future__ import annotations
@@ -69,10 +70,12 @@ def main() -> int:
     frames = np.linspace(1, len(traj.poses) - 2, args.frames).astype(int)
     rows = {k: [] for k in ("render_sharp", "render_blur_5ms", "render_blur_20ms", "sensor", "total_5ms",
                             "rig_pair_shared_5ms")}
+    cpu = {"render_sharp": [], "sensor": []}
     for k in frames:
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         renderer.render(traj.poses[k])
         rows["render_sharp"].append(time.perf_counter() - t)
+        cpu["render_sharp"].append(time.process_time() - c)
         for exp_us, key in ((5000.0, "render_blur_5ms"), (20000.0, "render_blur_20ms")):
             renderer._cache.clear()
             t = time.perf_counter()
@@ -80,9 +83,10 @@ def main() -> int:
             rows[key].append(time.perf_counter() - t)
         lum5 = renderer.render_exposure(traj, int(k), 5000.0)  # cached sharp render: smear only
         if sensor is not None:
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             sensor.capture(lum5, 5000.0, 6.0, rng)
             rows["sensor"].append(time.perf_counter() - t)
+            cpu["sensor"].append(time.process_time() - c)
             rows["total_5ms"].append(rows["render_blur_5ms"][-1] + rows["sensor"][-1])
         shared._cache.clear()
         t = time.perf_counter()  # both cameras of the rig from one render (share_render=True), per camera
@@ -101,6 +105,7 @@ def main() -> int:
         "setup_s": round(setup_s, 2), "sensor_note": sensor_note,
         "median_ms": {k: round(1e3 * float(np.median(v)), 2) for k, v in rows.items() if v},
         "frames_per_s": {k: round(1.0 / float(np.median(v)), 2) for k, v in rows.items() if v},
+        "median_cpu_ms": {k: round(1e3 * float(np.median(v)), 2) for k, v in cpu.items() if v},
         "peak_python_alloc_mb": round(peak_py / 2**20, 1), "max_rss_mb": round(maxrss_mb, 1),
     }
     print(f"simulator speed, {args.width}x{args.height}, city {args.city}, {len(frames)} frames, "
@@ -109,6 +114,8 @@ def main() -> int:
     for k in rows:
         if rows[k]:
             print(f"{k:28s} {result['median_ms'][k]:10.1f} {result['frames_per_s'][k]:9.2f}")
+    for k, v in result["median_cpu_ms"].items():
+        print(f"{'cpu time ' + k:28s} {v:10.1f}   (process CPU time, all threads: cost without contention)")
     if sensor_note:
         print(f"sensor: {sensor_note}")
     print(f"peak python allocations {result['peak_python_alloc_mb']} MB, max RSS {result['max_rss_mb']} MB")
