@@ -22,18 +22,24 @@ import numpy as np
 
 def bench(width: int, height: int, n_frames: int) -> dict:
     from expoctl.controllers.registry import make_controller
-    from expoctl.rig.closed_loop import RigConfig, RouteScene, make_sensors, sensor_rng
+    import yaml
+
+    from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, sensor_rng
     from expoctl.rig.protocol import perturb
     from expoctl.world import load_city
 
-    rig = RigConfig.from_dict({"width": width, "height": height})
-    city = load_city("train")
+    root = Path(__file__).resolve().parents[1]
+    world = yaml.safe_load((root / "conf" / "world" / "default.yaml").read_text())
+    rig = RigConfig.from_dict(yaml.safe_load((root / "conf" / "rig" / "default.yaml").read_text()))
+    render = RenderConfig.from_world(world).with_size(width, height)
+    sensor_cfg = yaml.safe_load((root / "conf" / "sensor" / "default.yaml").read_text())
+    city = load_city(world["cities"]["train"], str(root / world["city_dir"]))
     t0 = time.perf_counter()
     city.texture_atlas()
     atlas_s = time.perf_counter() - t0
     traj = city.traversal(1, n_frames + 1, rig.fps, 0)
-    scene = RouteScene(city, traj, rig)
-    sensors, _ = make_sensors({}, rig, 2, 0.15, 0)
+    scene = RouteScene(city, traj, rig, render)
+    sensors, _ = make_sensors(sensor_cfg, render, 2, 0.15, 0)
     controller = make_controller("agae", {})
     from expoctl.controllers.base import Settings
 
