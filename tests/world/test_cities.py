@@ -79,3 +79,21 @@ def test_traversal_arguments_are_checked():
         city.traversal(0, 10, fps=0.0)
     with pytest.raises(ConfigError, match="world.traversal.n_frames"):
         city.traversal(0, 0)
+
+
+def test_world_group_config():
+    import yaml as _yaml
+
+    from expoctl.world import load_world_city, validate_world_config
+    world = _yaml.safe_load((CONF.parent / "default.yaml").read_text())
+    world["city_dir"] = str(CONF)
+    validate_world_config(world)
+    assert load_world_city(world, "validation").name == "validation"
+    with pytest.raises(ConfigError, match="world.cities.nowhere"):
+        load_world_city(world, "nowhere")
+    bad = dict(world, cities={"train": "atlantis"})
+    with pytest.raises(ConfigError, match="world.city"):
+        validate_world_config(bad)
+    bad = dict(world, render=dict(world["render"], width=-3))
+    with pytest.raises(ConfigError, match="world.render.width"):
+        validate_world_config(bad)

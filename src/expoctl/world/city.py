@@ -82,6 +82,30 @@ def load_city(name_or_dict: str | dict, city_dir: str | Path | None = None) -> "
     return City(city_config(name_or_dict, city_dir))
 
 
+def load_world_city(world_cfg: dict, split: str) -> "City":
+    """The city configured for `split` in the `world` config group (conf/world/default.yaml: cities, city_dir)."""
+    cities = world_cfg.get("cities") if isinstance(world_cfg, dict) else None
+    if not isinstance(cities, dict):
+        raise ConfigError("world.cities", "must map split names to city names or city configs")
+    if split not in cities:
+        raise ConfigError(f"world.cities.{split}", "no city configured for this split")
+    city_dir = world_cfg.get("city_dir")
+    if city_dir is not None and not isinstance(city_dir, str):
+        raise ConfigError("world.city_dir", f"must be a directory path or null, got {city_dir!r}")
+    return load_city(cities[split], city_dir)
+
+
+def validate_world_config(world_cfg: dict) -> None:
+    """Validate the whole `world` group (every configured city and the render keys) before any rendering."""
+    from expoctl.world.renderer import validate_render_config
+    cities = world_cfg.get("cities") if isinstance(world_cfg, dict) else None
+    if not isinstance(cities, dict) or not cities:
+        raise ConfigError("world.cities", "must map split names to city names or city configs")
+    for split, name in cities.items():
+        city_config(name, world_cfg.get("city_dir"))
+    validate_render_config(world_cfg.get("render", {}))
+
+
 class City:
     def __init__(self, cfg: dict):
         self.cfg = cfg

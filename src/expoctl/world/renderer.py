@@ -41,6 +41,39 @@ def _rgb_norm(rgb):
     return rgb / float(rgb @ _Y)
 
 
+RENDER_KEYS = ("width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes",
+               "share_render")
+
+
+def validate_render_config(render_cfg: dict) -> None:
+    """Check the `world.render` group (keys of conf/world/default.yaml) without building anything."""
+    if not isinstance(render_cfg, dict):
+        raise ConfigError("world.render", "must be a mapping")
+    for key in render_cfg:
+        if key not in RENDER_KEYS:
+            raise ConfigError(f"world.render.{key}", f"unknown key; known: {', '.join(RENDER_KEYS)}")
+    for key in ("width", "height", "max_subframes"):
+        v = render_cfg.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise ConfigError(f"world.render.{key}", f"must be a positive integer, got {v!r}")
+    for key in ("hfov_deg", "glare_fraction", "mip_bias", "tmax_m"):
+        v = render_cfg.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            raise ConfigError(f"world.render.{key}", f"must be a number, got {v!r}")
+    if "hfov_deg" in render_cfg and not 1.0 < render_cfg["hfov_deg"] < 179.0:
+        raise ConfigError("world.render.hfov_deg", f"must be in (1, 179) degrees, got {render_cfg['hfov_deg']}")
+    if "glare_fraction" in render_cfg and not 0.0 <= render_cfg["glare_fraction"] <= 0.05:
+        raise ConfigError("world.render.glare_fraction", f"must be in [0, 0.05], got {render_cfg['glare_fraction']}")
+    if "mip_bias" in render_cfg and not render_cfg["mip_bias"] > 0:
+        raise ConfigError("world.render.mip_bias", f"must be > 0, got {render_cfg['mip_bias']}")
+    if "tmax_m" in render_cfg and not render_cfg["tmax_m"] > 10:
+        raise ConfigError("world.render.tmax_m", f"must be > 10 m, got {render_cfg['tmax_m']}")
+    if "blur" in render_cfg and render_cfg["blur"] not in ("fast", "reference"):
+        raise ConfigError("world.render.blur", f"must be 'fast' or 'reference', got {render_cfg['blur']!r}")
+    if "share_render" in render_cfg and not isinstance(render_cfg["share_render"], bool):
+        raise ConfigError("world.render.share_render", f"must be true or false, got {render_cfg['share_render']!r}")
+
+
 class Renderer:
     """Render a city from camera poses.
 
@@ -78,23 +111,7 @@ class Renderer:
     @classmethod
     def from_config(cls, city: City, render_cfg: dict, conditions: Conditions | None = None) -> "Renderer":
         """Build from the `world.render` config group (keys as in conf/world/default.yaml); unknown keys are errors."""
-        allowed = {"width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes",
-                   "share_render"}
-        if not isinstance(render_cfg, dict):
-            raise ConfigError("world.render", "must be a mapping")
-        for key in render_cfg:
-            if key not in allowed:
-                raise ConfigError(f"world.render.{key}", f"unknown key; known: {', '.join(sorted(allowed))}")
-        for key in ("width", "height", "max_subframes"):
-            v = render_cfg.get(key)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-                raise ConfigError(f"world.render.{key}", f"must be a positive integer, got {v!r}")
-        for key in ("hfov_deg", "glare_fraction", "mip_bias", "tmax_m"):
-            v = render_cfg.get(key)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
-                raise ConfigError(f"world.render.{key}", f"must be a number, got {v!r}")
-        if "tmax_m" in render_cfg and not render_cfg["tmax_m"] > 10:
-            raise ConfigError("world.render.tmax_m", f"must be > 10 m, got {render_cfg['tmax_m']}")
+        validate_render_config(render_cfg)
         return cls(city, conditions=conditions, **render_cfg)
 
     # ------------------------------------------------------------------ lighting setup
