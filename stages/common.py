@@ -50,6 +50,35 @@ STAGE_KEYS: dict[str, list[str]] = {
 }
 
 
+def stage_keys(stage: str) -> list[str]:
+    """Config keys of a DVC stage; `<name>_iter2` reads its base stage's keys plus the `iteration2` block."""
+    if stage.endswith("_iter2"):
+        return STAGE_KEYS[stage.removesuffix("_iter2")] + ["iteration2"]
+    return STAGE_KEYS.get(stage, [])
+
+
+def for_iteration(cfg: dict[str, Any], iteration: int) -> dict[str, Any]:
+    """The config a stage sees in the paper's data-collection iteration `iteration` (1 or 2).
+
+    Iteration 2 (the trained network becomes camera 1's reference, more data is collected, and the model is retrained
+    on both sets) runs the same stage code on its own paths: `paths` becomes `iteration2.paths`, while the
+    iteration-1 paths stay readable as `paths_iter1` (ingest reads both raw directories, features reuses the
+    iteration-1 counts, collect takes the iteration-1 model as reference).
+    """
+    if iteration == 1:
+        return cfg
+    if iteration != 2:
+        raise InputError(f"--iteration must be 1 or 2, got {iteration}")
+    it2 = cfg.get("iteration2")
+    if not isinstance(it2, dict) or not isinstance(it2.get("paths"), dict):
+        raise InputError(f"{RESOLVED_CONFIG}: config key 'iteration2.paths' is missing")
+    out = dict(cfg)
+    out["paths_iter1"] = dict(cfg["paths"])
+    out["paths"] = {**cfg["paths"], **it2["paths"]}
+    out["iteration"] = 2
+    return out
+
+
 def main_project_root(start: Path = PROJECT_ROOT) -> Path:
     """The user's project root, also from inside a `dvc exp run --queue` workspace copy.
 
@@ -170,7 +199,7 @@ def tracked_run(stage: str, cfg: dict[str, Any]) -> Iterator[Tracker]:
     import mlflow
 
     experiment_id = init_tracking()
-    sub = select_keys(cfg, STAGE_KEYS.get(stage, []))
+    sub = select_keys(cfg, stage_keys(stage))
     with mlflow.start_run(experiment_id=experiment_id, run_name=stage):
         tracker = Tracker(mlflow)
         tracker.set_tags({"stage": stage, "git_commit": git_commit(), "config_hash": config_hash(sub),
@@ -182,12 +211,22 @@ def tracked_run(stage: str, cfg: dict[str, Any]) -> Iterator[Tracker]:
 
 
 def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> None:
-    """Entry point of a DVC stage: run it tracked; user-caused errors print one line and exit 2."""
-    logging.basicConfig(level=logging.INFO, format=f"[{stage}] %(message)s")
+    """Entry point of a DVC stage: run it tracked; user-caused errors print one line and exit 2.
+
+    `python -m stages.<name> --iteration 2` runs the stage for the paper's second data-collection iteration
+    (see `for_iteration`); its MLflow run and DVC stage are called `<name>_iter2`.
+    """
+    import argparse
+
+    parser = argparse.ArgumentParser(prog=f"python -m stages.{stage}")
+    parser.add_argument("--iteration", type=int, default=1, choices=(1, 2))
+    args = parser.parse_args()
+    name = stage if args.iteration == 1 else f"{stage}_iter2"
+    logging.basicConfig(level=logging.INFO, format=f"[{name}] %(message)s")
     logging.getLogger("alembic").setLevel(logging.WARNING)
     try:
-        cfg = load_resolved()
-        with tracked_run(stage, cfg) as tracker:
+        cfg = for_iteration(load_resolved(), args.iteration)
+        with tracked_run(name, cfg) as tracker:
             run(cfg, tracker)
     except InputError as exc:
         print(f"expoctl {stage}: error: {exc}", file=sys.stderr)

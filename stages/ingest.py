@@ -15,7 +15,10 @@ def run(cfg: dict, tracker) -> None:
     paths = cfg["paths"]
     icfg = IngestConfig.from_dict(cfg["ingest"])
     t0 = time.perf_counter()
-    frames = ingest(PROJECT_ROOT / paths["raw_dir"], PROJECT_ROOT / paths["frames"], PROJECT_ROOT / paths["images_dir"],
+    raw_dirs = [PROJECT_ROOT / paths["raw_dir"]]
+    if cfg.get("iteration") == 2:  # iteration 2 trains on both data sets: iteration 1's sequences come first
+        raw_dirs.insert(0, PROJECT_ROOT / cfg["paths_iter1"]["raw_dir"])
+    frames = ingest(raw_dirs, PROJECT_ROOT / paths["frames"], PROJECT_ROOT / paths["images_dir"],
                     icfg, project_root=PROJECT_ROOT, progress=log.info)
     seconds = time.perf_counter() - t0
     per_split = frames.groupby("split")["sequence"].nunique().to_dict()

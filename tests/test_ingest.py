@@ -84,3 +84,16 @@ def test_bad_config(d, key):
     with pytest.raises(ConfigError) as exc:
         IngestConfig.from_dict(d)
     assert exc.value.key == key
+
+
+def test_ingest_several_raw_dirs(tmp_path):
+    write_synthetic_sequence(tmp_path / "raw" / "train" / "it1_a", n_frames=2)
+    write_synthetic_sequence(tmp_path / "raw_iter2" / "train" / "it2_a", n_frames=2)
+    write_synthetic_sequence(tmp_path / "raw_iter2" / "validation" / "it2_b", n_frames=2)
+    frames = ingest([tmp_path / "raw", tmp_path / "raw_iter2"], tmp_path / "f.parquet", tmp_path / "img",
+                    IngestConfig(8, 8), project_root=tmp_path)
+    assert frames.groupby("sequence")["split"].first().to_dict() == {
+        "it1_a": "train", "it2_a": "train", "it2_b": "validation"}
+    (tmp_path / "empty").mkdir()
+    assert len(ingest([tmp_path / "raw", tmp_path / "empty"], tmp_path / "g.parquet", tmp_path / "img2",
+                      IngestConfig(8, 8), project_root=tmp_path)) == 4

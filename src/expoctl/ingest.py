@@ -99,14 +99,21 @@ def _relpath(path: Path, root: Path) -> str:
         return str(path.resolve())
 
 
-def ingest(raw_dir: str | os.PathLike, frames_path: str | os.PathLike, images_dir: str | os.PathLike,
+def ingest(raw_dir: str | os.PathLike | list, frames_path: str | os.PathLike, images_dir: str | os.PathLike,
            cfg: IngestConfig, project_root: str | os.PathLike = ".",
            progress: Callable[[str], None] | None = None) -> pd.DataFrame:
-    """Validate, pair and store all sequences under `raw_dir`; returns the frames table (also written)."""
-    raw_dir, project_root = Path(raw_dir), Path(project_root)
-    seq_dirs = find_sequences(raw_dir)
+    """Validate, pair and store all sequences under `raw_dir` (one directory or a list of them, e.g. both data
+    collection iterations); returns the frames table (also written)."""
+    raw_dirs = [Path(d) for d in (raw_dir if isinstance(raw_dir, (list, tuple)) else [raw_dir])]
+    project_root = Path(project_root)
+    root_of: dict[Path, Path] = {}
+    for d in raw_dirs:
+        for s in find_sequences(d):
+            root_of[s] = d
+    seq_dirs = sorted(root_of)
     if not seq_dirs:
-        raise InputError(f"{raw_dir}: no sequences found (a sequence is a directory with sequence.yaml and frames.csv)")
+        names = ", ".join(str(d) for d in raw_dirs)
+        raise InputError(f"{names}: no sequences found (a sequence is a directory with sequence.yaml and frames.csv)")
 
     # Pass 1: metadata and CSVs of all sequences, every problem at once.
     checks: list[SequenceCheck] = [check_sequence(s, decode_images=False) for s in seq_dirs]
@@ -126,7 +133,7 @@ def ingest(raw_dir: str | os.PathLike, frames_path: str | os.PathLike, images_di
         for c in checks:
             if progress:
                 progress(f"{c.seq_dir.name}: {c.n_frames} frame pairs")
-            tables.append(_ingest_sequence(c, raw_dir, staging, cfg, project_root, problems))
+            tables.append(_ingest_sequence(c, root_of[c.seq_dir], staging, cfg, project_root, problems))
         if problems:
             raise InputError(_problem_text(problems))  # atomic_dir discards the staging directory
         frames = pd.concat(tables, ignore_index=True)[FRAMES_TABLE_COLUMNS]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from stages.common import STAGE_KEYS
+from stages.common import STAGE_KEYS, stage_keys
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
@@ -27,8 +27,9 @@ def test_every_stage_declares_its_config_keys():
             continue
         base = name.removesuffix("_iter2")
         assert base in STAGE_KEYS, f"stage {name} has no STAGE_KEYS entry"
-        assert sorted(_declared_keys(stage)) == sorted(STAGE_KEYS[base]), name
-        assert stage["cmd"].startswith("python -m stages."), name
+        assert sorted(_declared_keys(stage)) == sorted(stage_keys(name)), name
+        expected_cmd = f"python -m stages.{base}" + (" --iteration 2" if name.endswith("_iter2") else "")
+        assert stage["cmd"] == expected_cmd, name
 
 
 def test_stage_keys_exist_in_every_scale():
@@ -41,4 +42,4 @@ def test_stage_keys_exist_in_every_scale():
         stages = yaml.safe_load((PROJECT_ROOT / "dvc.yaml").read_text())["stages"]
         for name in stages:
             if name != "compose":
-                select_keys(cfg, STAGE_KEYS[name.removesuffix("_iter2")])  # raises if a key is missing
+                select_keys(cfg, stage_keys(name))  # raises if a key is missing

@@ -44,3 +44,17 @@ def test_tracked_run_logs_one_run_with_tags(tmp_path, monkeypatch):
         assert "stage_seconds" in run.data.metrics
     finally:
         mlflow.set_tracking_uri(None)
+
+
+def test_iteration2_swaps_paths_and_keeps_iteration1():
+    from stages.common import for_iteration, stage_keys
+
+    cfg = {"paths": {"raw_dir": "data/raw", "model": "models/controller.pt", "frames": "f.parquet"},
+           "iteration2": {"enabled": True, "paths": {"raw_dir": "data/raw_iter2", "model": "models/c2.pt"}}}
+    it2 = for_iteration(cfg, 2)
+    assert it2["paths"] == {"raw_dir": "data/raw_iter2", "model": "models/c2.pt", "frames": "f.parquet"}
+    assert it2["paths_iter1"] == cfg["paths"] and it2["iteration"] == 2
+    assert for_iteration(cfg, 1) is cfg
+    assert stage_keys("ingest_iter2") == stage_keys("ingest") + ["iteration2"]
+    with pytest.raises(InputError, match="iteration2.paths"):
+        for_iteration({"paths": {}}, 2)
