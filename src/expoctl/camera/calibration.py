@@ -1,0 +1,291 @@
+"""Camera-model validation against real bracketed stacks: response recovery, merging, re-exposure, response fits.
+
+The check (simulator spec, "Real multi-exposure data"): recover a real camera's response from a bracketed stack
+(Debevec & Malik 1997, via OpenCV), merge the brackets to relative radiance, re-expose that radiance at a held-out
+bracket's exposure time through OUR sensor (its linear EMVA-1288 chain: electrons, noise, full well, ADC) followed by
+a response curve, and compare with the real frame (RMSE relative to 8-bit full scale).
+
+Units. The recovered curve maps an 8-bit code z to a relative exposure X(z) = exp(g(z)) (OpenCV pins g(128) = 0 per
+channel, so X = 1 is "mid-grey" in every channel); the merged radiance R is in X per second. The sensor's linear signal
+is x = (DN − black) / (ADC max − black) ∈ [0, 1] (1 = ADC full scale). A re-exposure at time t sets x = κ·R·t, i.e.
+electrons = c·R·t with c = κ·(electrons at ADC full scale); κ is fitted on the training brackets only.
+
+Parametric response (what the simulator can be configured with): code/255 = offset + (1 − offset)·F(x), with F our
+sRGB or power-law curve (`expoctl.camera.response`) and an output pedestal `offset` (real 8-bit images sit on a flare /
+black floor of ~13–19 codes). Tying the gain to 1 − offset makes x = 1 (ADC full scale) map to code 255 and removes
+the gain/exposure-scale degeneracy of a power law.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares, minimize_scalar
+
+from expoctl.camera.response import _forward
+from expoctl.camera.sensor import Sensor, SensorConfig
+from expoctl.errors import InputError
+
+FLOOR_DN = 20        # codes ≤ this are at the black/flare floor (the Memorial stack's plateau is ~13–19)
+SATURATED_DN = 250   # codes ≥ this are (near) saturated
+
+
+# ---------------------------------------------------------------- stack I/O and bookkeeping
+
+def load_bracketed_stack(directory: str | Path, list_name: str = "exposure_times.txt"
+                         ) -> tuple[list[np.ndarray], np.ndarray, list[str]]:
+    """Read `<directory>/<list_name>` (lines "file seconds", # comments) → (uint8 RGB images, times_s, file names)."""
+    directory = Path(directory)
+    listing = directory / list_name
+    if not listing.is_file():
+        raise InputError(f"{listing}: exposure list not found")
+    images, times, names = [], [], []
+    for lineno, line in enumerate(listing.read_text().splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        try:
+            name, t = parts[0], float(parts[1])
+        except (IndexError, ValueError):
+            raise InputError(f"{listing}:{lineno}: expected 'file seconds', got {line!r}") from None
+        if not t > 0:
+            raise InputError(f"{listing}:{lineno}: exposure time must be positive, got {t}")
+        img = cv2.imread(str(directory / name), cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputError(f"{listing}:{lineno}: cannot read image {directory / name}")
+        if images and img.shape != images[0].shape:
+            raise InputError(f"{directory / name}: shape {img.shape} differs from {images[0].shape}")
+        images.append(np.ascontiguousarray(img[..., ::-1]))
+        times.append(t)
+        names.append(name)
+    if len(images) < 3:
+        raise InputError(f"{listing}: need at least 3 brackets, found {len(images)}")
+    return images, np.asarray(times, np.float64), names
+
+
+def valid_mask(real: np.ndarray, floor_dn: int = FLOOR_DN, saturated_dn: int = SATURATED_DN) -> np.ndarray:
+    """Samples (pixel × channel) that are neither at the black floor nor saturated in the real frame."""
+    return (real > floor_dn) & (real < saturated_dn)
+
+
+def plateau_brackets(images: list[np.ndarray], min_valid_share: float = 0.05, floor_dn: int = FLOOR_DN,
+                     saturated_dn: int = SATURATED_DN) -> list[int]:
+    """Indices of brackets with fewer than `min_valid_share` of their samples between the floor and saturation.
+
+    In the Memorial stack these are the darkest frames, whose signal no longer falls by half per stop but sits on
+    the ~19-code flare/black floor: they carry almost no radiance information and would pull the recovered curve's
+    toe towards a constant.
+    """
+    return [i for i, im in enumerate(images) if valid_mask(im, floor_dn, saturated_dn).mean() < min_valid_share]
+
+
+def rmse_percent(predicted: np.ndarray, real: np.ndarray, mask: np.ndarray) -> float:
+    """RMSE over the masked samples, in percent of 8-bit full scale (255)."""
+    if not mask.any():
+        raise ValueError("no samples to compare")
+    d = predicted[mask].astype(np.float64) - real[mask].astype(np.float64)
+    return float(100.0 * np.sqrt(np.mean(d * d)) / 255.0)
+
+
+# ---------------------------------------------------------------- Debevec recovery and merge (OpenCV)
+
+def recover_response(images: list[np.ndarray], times_s: np.ndarray, samples: int = 70,
+                     smoothness: float = 10.0) -> np.ndarray:
+    """Debevec–Malik inverse response: (256, 3) float64 relative exposure X(z) per code and channel (X(128) = 1)."""
+    cal = cv2.createCalibrateDebevec(samples, smoothness, False)
+    resp = cal.process([np.ascontiguousarray(im) for im in images], np.asarray(times_s, np.float32))
+    return resp[:, 0, :].astype(np.float64)
+
+
+def merge_radiance(images: list[np.ndarray], times_s: np.ndarray, response: np.ndarray, method: str = "masked",
+                   floor_dn: int = FLOOR_DN, saturated_dn: int = SATURATED_DN) -> np.ndarray:
+    """Weighted merge of the brackets to relative radiance (X per second), float32 HxWx3.
+
+    method "opencv": cv2.createMergeDebevec (hat weights over 0…255, so floor codes keep a weight of ~1/8 of the
+    maximum). method "masked": the same log-domain Debevec average, ln R = Σ w(z)(ln X(z) − ln t) / Σ w(z), but with
+    a hat on (floor_dn, saturated_dn) that is zero at and beyond both ends. On a stack whose dark brackets sit on a
+    flare floor, a floor code z at a short time t claims a radiance X(z)/t far above the truth; the OpenCV weights
+    let those claims in, the masked ones do not. Samples with no usable bracket fall back to the OpenCV hat weights.
+    """
+    if method == "opencv":
+        resp = np.asarray(response, np.float32).reshape(256, 1, 3)
+        merge = cv2.createMergeDebevec()
+        return merge.process([np.ascontiguousarray(im) for im in images], np.asarray(times_s, np.float32), resp)
+    if method != "masked":
+        raise ValueError(f"unknown merge method {method!r} (masked | opencv)")
+    ln_x = np.log(np.maximum(np.asarray(response, np.float64), 1e-300))
+    z = np.arange(256)
+    w_masked = np.clip(np.minimum(z - floor_dn, saturated_dn - z), 0, None).astype(np.float64)
+    w_hat = np.minimum(z + 1, 256 - z).astype(np.float64)
+    shape = images[0].shape
+    num, den = np.zeros(shape), np.zeros(shape)
+    num_hat, den_hat = np.zeros(shape), np.zeros(shape)
+    channels = np.arange(3)
+    for im, t in zip(images, np.asarray(times_s, np.float64)):
+        sample = ln_x[im, channels] - np.log(t)
+        num += w_masked[im] * sample
+        den += w_masked[im]
+        num_hat += w_hat[im] * sample
+        den_hat += w_hat[im]
+    out = np.where(den > 0, num / np.where(den > 0, den, 1.0), num_hat / den_hat)
+    return np.exp(out).astype(np.float32)
+
+
+def monotone_log_response(response: np.ndarray) -> np.ndarray:
+    """ln X(z) made strictly increasing in z (the recovered curve can wiggle at the ends, where data are few)."""
+    g = np.log(np.maximum(np.asarray(response, np.float64), 1e-300))
+    g = np.maximum.accumulate(g, axis=0)
+    return g + 1e-9 * np.arange(256)[:, None]  # strictly increasing, so the inverse is a function
+
+
+# ---------------------------------------------------------------- response curves as x → code
+
+@dataclass(frozen=True)
+class ParametricResponse:
+    """code/255 = offset + (1 − offset)·F(x), F = our `curve` ('srgb' | 'gamma' with `gamma`)."""
+
+    curve: str = "srgb"
+    gamma: float = 2.2
+    offset: float = 0.0
+
+    def code(self, x_norm: np.ndarray) -> np.ndarray:
+        """Linear signal (0 = black level, 1 = ADC full scale) → continuous code in [0, 255]."""
+        y = self.offset + (1.0 - self.offset) * _forward(np.asarray(x_norm, np.float64), self.curve, self.gamma)
+        return 255.0 * np.clip(y, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class TabulatedResponse:
+    """The recovered Debevec curve itself, as x → code: x = X / x_full_scale, code = g⁻¹(ln X) per channel."""
+
+    log_response: np.ndarray   # (256, 3) strictly increasing ln X(z)
+    x_full_scale: float        # relative exposure X that maps to x = 1 (ADC full scale)
+
+    def code(self, x_norm: np.ndarray) -> np.ndarray:
+        """x (..., 3) per channel → continuous code (..., 3); below/above the curve's range it clamps to 0/255."""
+        x = np.asarray(x_norm, np.float64)
+        if x.ndim == 0 or x.shape[-1] != 3:
+            raise ValueError(f"x must have a last axis of 3 channels, got shape {x.shape}")
+        ln_x = np.log(np.maximum(x * self.x_full_scale, 1e-300))
+        out = np.empty(x.shape, np.float64)
+        for c in range(3):
+            out[..., c] = np.interp(ln_x[..., c], self.log_response[:, c], np.arange(256.0))
+        return out
+
+
+def code_histogram(images: list[np.ndarray]) -> np.ndarray:
+    """(256, 3) counts of each code per channel over the images: weights for `fit_parametric_response`."""
+    return np.stack([sum(np.bincount(im[..., c].ravel(), minlength=256) for im in images) for c in range(3)], axis=1)
+
+
+def fit_parametric_response(response: np.ndarray, curve: str = "srgb", fit_gamma: bool = False,
+                            fit_offset: bool = True, code_weights: np.ndarray | None = None,
+                            code_range: tuple[int, int] = (FLOOR_DN + 1, SATURATED_DN - 1)
+                            ) -> tuple[ParametricResponse, float, dict]:
+    """Least-squares fit of a `ParametricResponse` to a recovered curve, in code space (what the RMSE measures).
+
+    Each code z in `code_range` and channel gives a point (X(z), z); the model is z ≈ code(X / x_full_scale) with one
+    curve shared by the channels (our sensor has one response). `code_weights` (256, 3), e.g. `code_histogram` of
+    the training brackets, weights each point by how many pixels carry that code, so the fit minimises the expected
+    squared code error of an image rather than of the (sparsely sampled, noisy) curve ends. Returns (response,
+    x_full_scale, info) with the fit's (weighted) RMSE in codes.
+    """
+    response = np.asarray(response, np.float64)
+    if response.shape != (256, 3):
+        raise ValueError(f"response must be (256, 3), got {response.shape}")
+    lo, hi = code_range
+    codes = np.arange(lo, hi + 1, dtype=np.float64)
+    ln_x = np.log(np.maximum(response[lo:hi + 1], 1e-300)).ravel()  # (n·3,)
+    target = np.repeat(codes[:, None], 3, axis=1).ravel()
+    weights = np.ones_like(target) if code_weights is None else np.asarray(code_weights, np.float64)[lo:hi + 1].ravel()
+    if weights.shape != target.shape or not np.all(weights >= 0) or weights.sum() <= 0:
+        raise ValueError("code_weights must be a non-negative (256, 3) array with some weight in the code range")
+    sqrt_w = np.sqrt(weights / weights.sum())
+
+    def unpack(p):
+        gamma = p[1] if fit_gamma else 2.2
+        offset = p[-1] if fit_offset else 0.0
+        return p[0], gamma, offset
+
+    def residual(p):
+        ln_scale, gamma, offset = unpack(p)
+        return sqrt_w * (ParametricResponse(curve, gamma, offset).code(np.exp(ln_x - ln_scale)) - target)
+
+    p0 = [float(np.max(ln_x)) + 0.5] + ([2.2] if fit_gamma else []) + ([0.05] if fit_offset else [])
+    lower = [-np.inf] + ([0.3] if fit_gamma else []) + ([-0.5] if fit_offset else [])
+    upper = [np.inf] + ([6.0] if fit_gamma else []) + ([0.5] if fit_offset else [])
+    sol = least_squares(residual, p0, bounds=(lower, upper), x_scale="jac")
+    ln_scale, gamma, offset = unpack(sol.x)
+    fitted = ParametricResponse(curve, float(gamma), float(offset))
+    info = {"fit_rmse_codes": float(np.sqrt(np.sum(sol.fun ** 2))), "codes": [lo, hi]}
+    return fitted, float(np.exp(ln_scale)), info
+
+
+# ---------------------------------------------------------------- re-exposure through our sensor
+
+def adc_code_lut(cfg: SensorConfig, response) -> np.ndarray:
+    """(ADC codes, 3) uint8 table: black-level subtraction, normalisation, the response's `code`, rounded — the same
+    chain as `Sensor.raw_to_8bit`, for any response with a `code(x)` method."""
+    dn = np.arange(cfg.adc_max_dn + 1, dtype=np.float64)
+    x = (dn - cfg.black_level_dn) / (cfg.adc_max_dn - cfg.black_level_dn)
+    codes = response.code(np.repeat(x[:, None], 3, axis=1))
+    return np.clip(np.rint(codes), 0, 255).astype(np.uint8)
+
+
+def apply_lut(raw_dn: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """Per-channel lookup of integer raw DN (H, W, 3) in an (n_codes, 3) table."""
+    idx = raw_dn.astype(np.int64)
+    out = np.empty(idx.shape, np.uint8)
+    for c in range(3):
+        out[..., c] = lut[idx[..., c], c]
+    return out
+
+
+def noise_free_codes(radiance: np.ndarray, time_s: float, kappa: float, cfg: SensorConfig,
+                     lut: np.ndarray) -> np.ndarray:
+    """The sensor chain without noise or fixed-pattern maps: x = κ·R·t → DN (rounded, clipped) → code."""
+    span = cfg.adc_max_dn - cfg.black_level_dn
+    dn = np.rint(np.asarray(radiance, np.float64) * (kappa * time_s * span) + cfg.black_level_dn)
+    return apply_lut(np.clip(dn, 0, cfg.adc_max_dn), lut)
+
+
+def fit_exposure_scale(radiance: np.ndarray, images: list[np.ndarray], times_s: np.ndarray, cfg: SensorConfig,
+                       lut: np.ndarray, kappa0: float, stride: int = 4) -> float:
+    """κ (linear signal per unit radiance·second) minimising the code RMSE of noise-free re-exposures of the given
+    (training) brackets over their valid samples; searched within ±2 stops of `kappa0` on a pixel grid of `stride`."""
+    r = radiance[::stride, ::stride]
+    reals = [im[::stride, ::stride] for im in images]
+    masks = [valid_mask(im) for im in reals]
+
+    def cost(ln_k):
+        err, n = 0.0, 0
+        for im, m, t in zip(reals, masks, times_s):
+            d = noise_free_codes(r, float(t), float(np.exp(ln_k)), cfg, lut)[m].astype(np.float64) - im[m]
+            err += float(np.dot(d, d))
+            n += d.size
+        return err / max(n, 1)
+
+    ln0 = np.log(kappa0)
+    res = minimize_scalar(cost, bounds=(ln0 - 2 * np.log(2), ln0 + 2 * np.log(2)), method="bounded",
+                          options={"xatol": 1e-4})
+    return float(np.exp(res.x))
+
+
+def reexpose(sensor: Sensor, radiance: np.ndarray, time_s: float, kappa: float, lut: np.ndarray,
+             rng: np.random.Generator, exposure_us: float = 10000.0, gain_db: float = 0.0) -> np.ndarray:
+    """Re-expose relative radiance at `time_s` through the sensor's noisy linear chain, then the response `lut`.
+
+    The real brackets (1/1024–32 s) lie outside the simulator's exposure range, so the sensor runs at `exposure_us`
+    and the scene luminance is scaled to give the same mean electrons: electrons = c·R·t with c = κ·e⁻(full scale).
+    """
+    cfg = sensor.cfg
+    e_full_scale = (cfg.adc_max_dn - cfg.black_level_dn) / (cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0))
+    electrons_per_unit = kappa * time_s * e_full_scale
+    per_cd_m2 = cfg.photons_per_cd_m2_s() * 1e-6 * exposure_us * cfg.quantum_efficiency
+    luminance = (np.asarray(radiance, np.float32) * np.float32(electrons_per_unit / per_cd_m2))
+    raw = sensor.capture_raw(luminance, exposure_us, gain_db, rng)
+    return apply_lut(raw, lut)
