@@ -85,7 +85,25 @@ def test_tiny_collect_is_valid_raw_data(tiny_run):
 def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
     out, _ = tiny_run
     cfg = tiny(city_dir)
-    cfg["collect"]["n_jobs"] = 2  # the process pool gives the same bytes as the in-process run
+    cfg["collect"]["splits"]["validation"] = None
+    again = tmp_path / "again"
+    collect(cfg, again, progress=False)
+    a, b = out / "train" / "train-small-t000", again / "train" / "train-small-t000"
+    assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
+    assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
+    for p in sorted((a / "cam2").iterdir()):
+        assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
+    cfg["seed"] = 4
+    other = tmp_path / "other"
+    collect(cfg, other, progress=False)
+    assert (other / "train" / "train-small-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
+
+
+@pytest.mark.slow  # spawns two worker processes (each loads numba kernels and builds the city's textures)
+def test_process_pool_gives_the_same_bytes(tiny_run, tmp_path, city_dir):
+    out, _ = tiny_run
+    cfg = tiny(city_dir)
+    cfg["collect"]["n_jobs"] = 2
     again = tmp_path / "again"
     collect(cfg, again, progress=False)
     for seq in ("train/train-small-t000", "validation/validation-small-t005"):
@@ -94,13 +112,6 @@ def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
         assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
         for p in sorted((a / "cam2").iterdir()):
             assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
-    a = out / "train" / "train-small-t000"
-    cfg["collect"]["n_jobs"] = 1
-    cfg["collect"]["splits"]["validation"] = None
-    cfg["seed"] = 4
-    other = tmp_path / "other"
-    collect(cfg, other, progress=False)
-    assert (other / "train" / "train-small-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
 
 
 def test_failure_leaves_previous_output_untouched(tmp_path, city_dir):
