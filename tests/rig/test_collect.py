@@ -157,6 +157,7 @@ def _with(path, value, city_dir):
         (("rig", "fps"), "fast", "rig.fps"),
         (("rig", "perturbation"), {"max_fraction": 2.0}, "rig.perturbation.max_fraction"),
         (("seed",), -1, "seed"),
+        (("sensor",), {"full_well_e": -5.0}, "sensor.full_well_e"),
     ],
 )
 def test_bad_config_names_the_key(path, value, key, tmp_path, city_dir):

@@ -167,10 +167,13 @@ def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool = Tr
     from expoctl.controllers.registry import make_controller
     from expoctl.io import atomic_dir
 
+    from expoctl.camera.sensor import SensorConfig
+
     # validate everything before any work: config groups, the reference controller's params, city names
     ccfg = CollectConfig.from_dict(cfg.get("collect"))
     RigConfig.from_dict(cfg.get("rig"))
     RenderConfig.from_world(cfg.get("world"))
+    SensorConfig.from_dict(cfg.get("sensor") or {})
     make_controller(ccfg.reference_controller, _reference_params(cfg, ccfg))
     jobs = plan_sequences(cfg, project_root)
     out_dir = Path(out_dir)
