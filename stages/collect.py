@@ -15,7 +15,8 @@ log = logging.getLogger(__name__)
 def run(cfg: dict, tracker) -> None:
     out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
     t0 = time.perf_counter()
-    summaries = collect(cfg, out_dir, progress=sys.stderr.isatty(), project_root=PROJECT_ROOT)
+    # a bar on a terminal; under DVC (no tty) one log line per finished sequence
+    summaries = collect(cfg, out_dir, progress=True if sys.stderr.isatty() else log.info, project_root=PROJECT_ROOT)
     seconds = time.perf_counter() - t0
     n_frames = sum(s["n_frames"] for s in summaries)
     metrics = {

@@ -22,7 +22,7 @@ class FakeTracker:
         self.artifacts.append(path)
 
 
-def test_stage_writes_raw_dir_and_logs(tmp_path):
+def test_stage_writes_raw_dir_and_logs(tmp_path, caplog):
     (tmp_path / "cities").mkdir()
     (tmp_path / "cities" / "small.yaml").write_text(
         yaml.safe_dump({"base": "train", "name": "small", "textures": {"tile_px": 256}}))
@@ -37,7 +37,9 @@ def test_stage_writes_raw_dir_and_logs(tmp_path):
                     "splits": {"train": {"n_sequences": 1, "frames": 3}, "validation": None, "test": None}},
     }
     tracker = FakeTracker()
-    stage.run(cfg, tracker)
+    with caplog.at_level("INFO"):
+        stage.run(cfg, tracker)
+    assert any("1/1 train-small-t000: 3 frame pairs" in r.getMessage() for r in caplog.records)
     assert validate_raw_dir(tmp_path / "raw") == []
     assert (tmp_path / "raw" / "train" / "train-small-t000" / "cam2" / "000002.png").is_file()
     assert tracker.metrics["n_sequences"] == 1 and tracker.metrics["n_frame_pairs"] == 3

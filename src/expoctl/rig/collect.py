@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -161,9 +162,10 @@ def plan_sequences(cfg: dict[str, Any], project_root: str | os.PathLike = ".") -
     return jobs
 
 
-def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool = True,
+def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool | Callable[[str], None] = True,
             project_root: str | os.PathLike = ".") -> list[dict[str, Any]]:
-    """Render every planned sequence into `out_dir/<split>/<sequence>/`; return one summary dict per sequence."""
+    """Render every planned sequence into `out_dir/<split>/<sequence>/`; return one summary dict per sequence.
+    `progress`: True = a tqdm bar, a callable = one line per finished sequence (e.g. a logger), False = quiet."""
     from expoctl.controllers.registry import make_controller
     from expoctl.io import atomic_dir
 
@@ -178,9 +180,13 @@ def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool = Tr
     jobs = plan_sequences(cfg, project_root)
     out_dir = Path(out_dir)
     summaries: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
     with atomic_dir(out_dir) as tmp_root:
-        for summary in _run_jobs(cfg, jobs, tmp_root, ccfg.n_jobs, progress):
+        for summary in _run_jobs(cfg, jobs, tmp_root, ccfg.n_jobs, progress is True):
             summaries.append(summary)
+            if callable(progress):
+                progress(f"{len(summaries)}/{len(jobs)} {summary['sequence']}: {summary['n_frames']} frame pairs "
+                         f"({time.perf_counter() - t0:.0f} s elapsed)")
     order = {j.name: i for i, j in enumerate(jobs)}
     return sorted(summaries, key=lambda s: order[s["sequence"]])
 
