@@ -226,6 +226,11 @@ class Sensor:
             raise InputError(f"gain_db {gain_db!r} outside {GAIN_DB_MIN:g}–{GAIN_DB_MAX:g} dB")
         if luminance.shape != (self.height, self.width, 3):
             raise ValueError(f"luminance has shape {luminance.shape}, sensor is {(self.height, self.width, 3)}")
+        # NaN would index the DN→8-bit table out of range in the compiled kernel; min() propagates NaN (one cheap
+        # pass). +inf is allowed (it saturates); small negatives from resampling are clamped to zero electrons.
+        low = float(np.min(luminance))
+        if math.isnan(low) or low == -math.inf:
+            raise InputError(f"luminance_cd_m2 contains {'NaN' if math.isnan(low) else '-inf'} values")
 
 
 def _shot_and_read_noise(mu: np.ndarray, rng: np.random.Generator, exact_below: float,
