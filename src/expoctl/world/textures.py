@@ -73,12 +73,12 @@ def _poster(rng, channels):
         base = rng.uniform(0.2, 1.8, size=3) if channels else np.full(3, rng.uniform(0.3, 1.8))
         out = np.ones((h, w, 3), np.float32) * base
         # text-like blocks: rows of dark dashes
-        rows = max(1, h // 12)
+        rows = max(1, h // 30)
         for r in range(rows):
             y = int((r + 0.5) * h / rows)
-            xs = np.cumsum(rng.integers(3, 14, size=w // 4 + 2))
+            xs = np.cumsum(rng.integers(6, 30, size=w // 6 + 2))
             for a, b in zip(xs[::2], xs[1::2]):
-                if b < w - 2 and rng.random() < 0.7:
+                if b < w - 2 and rng.random() < 0.35:
                     out[max(0, y - 2):y + 2, a:b] *= rng.uniform(0.1, 0.5)
         out[:2], out[-2:], out[:, :2], out[:, -2:] = 0.25, 0.25, 0.25, 0.25  # frame
         return out
@@ -111,16 +111,17 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
     coarse = _noise(rng, n, 1.2, 1.5 * m, n)
     tint = np.ones(3, np.float32)
     if kind == "road":
-        g = 1 + 0.22 * _photo("gravel", crop, n, texel_m, rng, 1.5) + 0.08 * fine + 0.12 * mid + 0.15 * coarse
+        # asphalt grain is low-contrast in real road images: keep it faint, with stronger patch-scale variation
+        g = 1 + 0.07 * _photo("gravel", crop, n, texel_m, rng, 1.5) + 0.03 * fine + 0.08 * mid + 0.15 * coarse
         tint = np.array([1.0, 1.0, 0.97])
     elif kind == "sidewalk":
-        g = 1 + 0.12 * _photo("gravel", crop, n, texel_m, rng, 0.8) + 0.1 * fine + 0.1 * mid + 0.12 * coarse
+        g = 1 + 0.06 * _photo("gravel", crop, n, texel_m, rng, 0.8) + 0.04 * fine + 0.08 * mid + 0.12 * coarse
         _joints(g, np.arange(0, n, 1.5 * m), 1, 2, 0.55)
         _joints(g, np.arange(0, n, 1.5 * m), 0, 2, 0.55)
         tint = np.array([1.0, 0.98, 0.95])
     elif kind in ("verge", "hill", "hedge"):
         scale = {"verge": 1.0, "hill": 2.5, "hedge": 1.8}[kind]
-        g = 1 + 0.35 * _photo("grass", crop, n, texel_m, rng, scale) + 0.2 * mid + 0.25 * coarse
+        g = 1 + 0.25 * _photo("grass", crop, n, texel_m, rng, scale) + 0.15 * mid + 0.25 * coarse
         tint = np.array([0.8, 1.05, 0.55]) if kind != "hill" else np.array([0.9, 1.0, 0.6])
     elif kind == "roof":
         g = 1 + 0.3 * _photo("gravel", crop, n, texel_m, rng, 3.0) + 0.2 * coarse
@@ -175,7 +176,7 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
                lambda h, w: np.ones((h, w, 3), np.float32) * np.array([0.3, 1.6, 0.6]))
         _rects(rng, g, int(n / m / 8), (0.9 * m, 1.2 * m), (1.8 * m, 2.1 * m), (0.1 * m, 0.2 * m),
                lambda h, w: np.ones((h, w, 3), np.float32) * np.array([1.8, 0.9, 0.3]))
-        _rects(rng, g, int(n / m / 5), (0.4 * m, 1.5 * m), (0.3 * m, 1.0 * m), (1.0 * m, 2.5 * m), _poster(rng, True))
+        _rects(rng, g, int(n / m / 10), (0.4 * m, 1.5 * m), (0.3 * m, 1.0 * m), (1.0 * m, 2.5 * m), _poster(rng, True))
         return np.clip(g / g.mean(), 0.05, 4.0).astype(np.float32)
     elif kind == "tunnel_ceiling":
         g = 1 + 0.2 * _photo("gravel", crop, n, texel_m, rng, 3.0) + 0.15 * mid + 0.3 * coarse
@@ -185,7 +186,7 @@ def make_material(kind: str, n: int, texel_m: float, crop: str, rng: np.random.G
         _joints(g, _random_cuts(rng, n, 0.3 * m, 2.0 * m), 0, 2, 0.6)  # bands, clamps, stickers
     elif kind == "sign":
         g = np.repeat((1 + 0.05 * fine + 0.1 * coarse)[:, :, None], 3, axis=2)
-        _rects(rng, g, int((n / m) ** 2 / 1.5), (0.3 * m, 1.6 * m), (0.3 * m, 1.2 * m), (0, n), _poster(rng, True))
+        _rects(rng, g, int((n / m) ** 2 / 3.0), (0.3 * m, 1.6 * m), (0.3 * m, 1.2 * m), (0, n), _poster(rng, True))
         return np.clip(g / g.mean(), 0.05, 4.0).astype(np.float32)
     elif kind == "portal":
         g = 1 + 0.2 * _photo("gravel", crop, n, texel_m, rng, 5.0) + 0.12 * mid + 0.25 * coarse
