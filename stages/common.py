@@ -50,10 +50,15 @@ STAGE_KEYS: dict[str, list[str]] = {
 }
 
 
+#: What an iteration-2 stage reads beyond its base stage's keys and `iteration2` (collect_iter2: the iteration-1 model).
+ITERATION2_EXTRA_KEYS: dict[str, list[str]] = {"collect": ["iteration2.collect", "paths.model"]}
+
+
 def stage_keys(stage: str) -> list[str]:
     """Config keys of a DVC stage; `<name>_iter2` reads its base stage's keys plus the `iteration2` block."""
     if stage.endswith("_iter2"):
-        return STAGE_KEYS[stage.removesuffix("_iter2")] + ["iteration2"]
+        base = stage.removesuffix("_iter2")
+        return STAGE_KEYS[base] + ["iteration2.enabled", "iteration2.paths"] + ITERATION2_EXTRA_KEYS.get(base, [])
     return STAGE_KEYS.get(stage, [])
 
 

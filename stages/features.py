@@ -36,7 +36,11 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     tracker.log_params({"effective": effective})
 
     t0 = time.perf_counter()
-    features, matches = compute_features(frames, root, fcfg, progress=True)
+    reused_features, reused_matches, todo = _reusable_iteration1(cfg, root, frames, fcfg)
+    features, matches = compute_features(todo, root, fcfg, progress=True) if len(todo) else (None, None)
+    if reused_features is not None:
+        features = pd.concat([t for t in (reused_features, features) if t is not None], ignore_index=True)
+        matches = pd.concat([t for t in (reused_matches, matches) if t is not None], ignore_index=True)
     seconds = time.perf_counter() - t0
     write_parquet(features, root / paths["features"])
     write_parquet(matches, root / paths["matches"])
@@ -61,6 +65,30 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
              metrics["images_per_s"],
              ", ".join(f"{n}: median {metrics[f'{n}.median_n_features']:.0f} features, "
                        f"{metrics[f'{n}.median_n_inliers']:.0f} inliers" for n in fcfg.frontends))
+
+
+def _reusable_iteration1(cfg: dict, root: Path, frames: pd.DataFrame, fcfg):
+    """Iteration 2 re-ingests iteration 1's sequences unchanged: take their counts from iteration 1's tables instead
+    of recomputing them. A sequence is reused only if its frames rows are identical in both iterations and the
+    iteration-1 tables hold every front end configured now. Returns (features, matches, frames still to compute)."""
+    if cfg.get("iteration") != 2:
+        return None, None, frames
+    p1 = cfg["paths_iter1"]
+    paths = [root / p1[k] for k in ("frames", "features", "matches")]
+    if not all(p.is_file() for p in paths):
+        return None, None, frames
+    frames1, features1, matches1 = (pd.read_parquet(p) for p in paths)
+    key = ["sequence", "frame_id", "camera", "gain_db", "exposure_us", "image_path"]
+    reuse = []
+    for seq, rows in frames.groupby("sequence"):
+        old = frames1[frames1.sequence == seq]
+        if len(old) == len(rows) and set(fcfg.frontends) <= set(features1.loc[features1.sequence == seq, "frontend"]) \
+                and old[key].sort_values(key[:3]).reset_index(drop=True).equals(
+                    rows[key].sort_values(key[:3]).reset_index(drop=True)):
+            reuse.append(seq)
+    log.info("iteration 2: reusing iteration-1 counts of %d of %d sequences", len(reuse), frames["sequence"].nunique())
+    keep = lambda t: t[t.sequence.isin(reuse) & t.frontend.isin(fcfg.frontends)]  # noqa: E731
+    return keep(features1), keep(matches1), frames[~frames.sequence.isin(reuse)]
 
 
 if __name__ == "__main__":

@@ -51,3 +51,14 @@ def test_write_png_rgb_round_trip(tmp_path):
     img[..., 2] = 77  # blue
     write_png(img, tmp_path / "x.png")
     assert cv2.imread(str(tmp_path / "x.png"))[0, 0].tolist() == [77, 0, 0]  # OpenCV reads BGR
+
+
+def test_outputs_get_usual_permissions(tmp_path):
+    import os
+    write_json({"a": 1}, tmp_path / "x.json")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "x.json").stat().st_mode & 0o777 == 0o666 & ~mask
+    with atomic_dir(tmp_path / "d"):
+        pass
+    assert (tmp_path / "d").stat().st_mode & 0o777 == 0o777 & ~mask

@@ -15,41 +15,45 @@ def _ran(output: str) -> set[str]:
     return set(re.findall(r"Running stage '([\w-]+)'", output))
 
 
+ITERATION2 = {"collect_iter2", "ingest_iter2", "features_iter2", "labels_iter2", "samples_iter2", "train_iter2"}
+ALL_STAGES = {"compose", "collect", "ingest", "features", "labels", "samples", "train"} | ITERATION2
+
+
 def test_repro_noop_and_per_key_rerun(project_copy):
     p = project_copy
-    all_stages = {"compose", "collect", "ingest", "features", "labels", "samples", "train"}
-
     first = p.dvc("repro")
-    assert _ran(first.stdout) == all_stages, first.stdout
+    assert _ran(first.stdout) == ALL_STAGES, first.stdout
     frames = pd.read_parquet(p.root / "data" / "frames.parquet")
     assert {"sequence", "frame_id", "camera", "timestamp_ns", "gain_db", "exposure_us", "image_path", "split",
             "section"} <= set(frames.columns)
     assert len(frames) == 4 * 12 * 2  # fixture: 2 train + 1 validation + 1 test sequences of 12 frame pairs
     assert set(frames["split"]) == {"train", "validation", "test"} and "dynamic" in set(frames["section"])
     for out in ("data/features.parquet", "data/matches.parquet", "data/labels.parquet", "data/samples.parquet",
-                "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md"):
+                "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md",
+                "models/controller_iter2.pt", "reports/iter2/train.json"):
         assert (p.root / out).is_file(), out
-    assert p.stage_runs() == {s: 1 for s in all_stages}
+    # iteration 2: one more training sequence driven by the iteration-1 network, trained on both data sets
+    frames2 = pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet")
+    assert set(frames["sequence"]) < set(frames2["sequence"])
+    assert frames2["sequence"].nunique() == frames["sequence"].nunique() + 1
+    assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
 
     second = p.dvc("repro")
     assert _ran(second.stdout) == set(), second.stdout
 
-    # An ingest key changes the stored images, not the frames table: features/labels/samples are skipped,
-    # train (which reads the images) re-runs.
-    p.set_overrides(["scale=fixture", "ingest.image_width=48"])
+    # Switching iteration 2 off re-runs exactly the iteration-2 stages; the final model is then iteration 1's.
+    p.set_overrides(["scale=fixture", "iteration2.enabled=false"])
     third = p.dvc("repro")
-    assert _ran(third.stdout) == {"compose", "ingest", "train"}, third.stdout
-
-    # A train key: only compose and train.
-    p.set_overrides(["scale=fixture", "ingest.image_width=48", "train.lr=0.0003"])
-    assert _ran(p.dvc("repro").stdout) == {"compose", "train"}
-    assert p.stage_runs() == {"compose": 3, "collect": 1, "ingest": 2, "features": 1, "labels": 1, "samples": 1,
-                              "train": 3}
+    assert _ran(third.stdout) == {"compose"} | ITERATION2, third.stdout
+    assert (p.root / "models" / "controller_iter2.pt").read_bytes() == (p.root / "models" / "controller.pt").read_bytes()
+    assert pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet").equals(frames)
 
     # A key no stage reads except compose: only compose re-runs (its output changes, but no stage's keys do).
-    p.set_overrides(["scale=fixture", "ingest.image_width=48", "train.lr=0.0003", "+unused_note=hello"])
+    p.set_overrides(["scale=fixture", "iteration2.enabled=false", "+unused_note=hello"])
     fourth = p.dvc("repro")
     assert _ran(fourth.stdout) == {"compose"}, fourth.stdout
+    runs = p.stage_runs()
+    assert runs["compose"] == 3 and runs["train"] == 1 and runs["train_iter2"] == 2
 
 
 def test_bad_raw_data_stops_cleanly(project_copy):

@@ -55,6 +55,7 @@ def test_iteration2_swaps_paths_and_keeps_iteration1():
     assert it2["paths"] == {"raw_dir": "data/raw_iter2", "model": "models/c2.pt", "frames": "f.parquet"}
     assert it2["paths_iter1"] == cfg["paths"] and it2["iteration"] == 2
     assert for_iteration(cfg, 1) is cfg
-    assert stage_keys("ingest_iter2") == stage_keys("ingest") + ["iteration2"]
+    assert stage_keys("ingest_iter2") == stage_keys("ingest") + ["iteration2.enabled", "iteration2.paths"]
+    assert "iteration2.collect" in stage_keys("collect_iter2") and "paths.model" in stage_keys("collect_iter2")
     with pytest.raises(InputError, match="iteration2.paths"):
         for_iteration({"paths": {}}, 2)

@@ -45,12 +45,20 @@ def _fixed(params: dict) -> Controller:
     return FixedController(params)
 
 
+def _learned(params: dict) -> Controller:
+    # imported lazily: it needs torch and a trained checkpoint (params["checkpoint"])
+    from expoctl.controllers.learned import make_learned
+
+    return make_learned(params)
+
+
 CONTROLLERS: dict[str, ControllerFactory] = {
     "agae": _agae,
     "shin": _shin,
     "shim": _shim,
     "mean_intensity": _mean_intensity,
     "fixed": _fixed,
+    "learned": _learned,
 }
 
 
