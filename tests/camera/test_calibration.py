@@ -12,7 +12,7 @@ import pytest
 from expoctl.camera.calibration import (
     FLOOR_DN, ParametricResponse, TabulatedResponse, adc_code_lut, code_histogram, fit_exposure_scale,
     fit_parametric_response, load_bracketed_stack, merge_radiance, monotone_log_response, noise_free_codes,
-    plateau_brackets, recover_response, reexpose, rmse_percent, valid_mask)
+    isotonic_increasing, plateau_brackets, recover_response, reexpose, rmse_percent, valid_mask)
 from expoctl.camera.sensor import Sensor, SensorConfig
 from expoctl.errors import InputError
 
@@ -133,6 +133,13 @@ def test_srgb_lut_matches_the_sensor_chain():
     codes = np.arange(cfg.adc_max_dn + 1, dtype=np.float32)
     np.testing.assert_array_equal(lut[:, 0], sensor.raw_to_8bit(codes))
     np.testing.assert_array_equal(lut[:, 0], lut[:, 2])
+
+
+def test_isotonic_fit_pools_a_spike_instead_of_carrying_it_up():
+    np.testing.assert_allclose(isotonic_increasing([0.0, 1.0, 5.0, 2.0, 3.0]), [0, 1, 10 / 3, 10 / 3, 10 / 3])
+    np.testing.assert_array_equal(isotonic_increasing([1.0, 2.0, 2.0, 7.0]), [1, 2, 2, 7])
+    g = monotone_log_response(np.exp(np.array([[0.0, 1.0, 5.0, 2.0, 3.0] + [3.0] * 251] * 3).T))
+    assert np.all(np.diff(g, axis=0) > 0)
 
 
 def test_tabulated_response_inverts_its_curve():

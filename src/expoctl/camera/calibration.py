@@ -135,11 +135,28 @@ def merge_radiance(images: list[np.ndarray], times_s: np.ndarray, response: np.n
     return np.exp(out).astype(np.float32)
 
 
+def isotonic_increasing(y: np.ndarray) -> np.ndarray:
+    """Least-squares non-decreasing fit to a sequence (pool-adjacent-violators): a spike is averaged with its
+    neighbours instead of being carried up the curve, as a running maximum would."""
+    values, counts = [], []
+    for v in np.asarray(y, np.float64):
+        values.append(float(v))
+        counts.append(1)
+        while len(values) > 1 and values[-2] > values[-1]:
+            n = counts[-2] + counts[-1]
+            values[-2] = (values[-2] * counts[-2] + values[-1] * counts[-1]) / n
+            counts[-2] = n
+            values.pop()
+            counts.pop()
+    return np.repeat(values, counts)
+
+
 def monotone_log_response(response: np.ndarray) -> np.ndarray:
-    """ln X(z) made strictly increasing in z (the recovered curve can wiggle at the ends, where data are few)."""
+    """ln X(z) made strictly increasing in z per channel (isotonic fit: the recovered curve wiggles at the ends, where
+    few samples constrain it), so that its inverse x → code is a function."""
     g = np.log(np.maximum(np.asarray(response, np.float64), 1e-300))
-    g = np.maximum.accumulate(g, axis=0)
-    return g + 1e-9 * np.arange(256)[:, None]  # strictly increasing, so the inverse is a function
+    g = np.stack([isotonic_increasing(g[:, c]) for c in range(g.shape[1])], axis=1)
+    return g + 1e-9 * np.arange(256)[:, None]
 
 
 # ---------------------------------------------------------------- response curves as x → code
