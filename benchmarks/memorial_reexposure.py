@@ -178,8 +178,8 @@ def main() -> int:
     for r in rows:
         print(f"{r['bracket']:18s} {r['time_s']:9.5g} {r['valid_share']:6.1%} {r['floor_share']:6.1%} "
               f"{r['saturated_share']:6.1%}" + "".join(f" {r['models'][m]['rmse_percent']:17.2f}" for m in MODELS))
-    print(f"{'median':18s} {'':9s} {'':6s} {'':6s} {'':6s}" + "".join(f" {med[m]:17.2f}" for m in MODELS))
-    print(f"{'median noise-free':18s} {'':9s} {'':6s} {'':6s} {'':6s}" + "".join(f" {med_clean[m]:17.2f}" for m in MODELS))
+    print(f"{'median':49s}" + "".join(f" {med[m]:17.2f}" for m in MODELS))
+    print(f"{'median noise-free':49s}" + "".join(f" {med_clean[m]:17.2f}" for m in MODELS))
     print(f"{'median, OpenCV merge':49s}"
           + "".join(f" {med_cv[m]:17.2f}" if m in med_cv else f" {'-':>17s}" for m in MODELS))
     print(f"{'median, flat half (diagn.)':49s}" + "".join(f" {med_flat[m]:17.2f}" for m in MODELS))

@@ -120,7 +120,8 @@ def main() -> int:
         scene_info[s] = {"median_mean_electrons": round(float(np.median(mu)), 2),
                          "exact_poisson_share": round(float((mu < cfg.poisson_exact_below).mean()), 4),
                          "exact_poisson_pixels": int((mu < cfg.poisson_exact_below).sum()),
-                         "saturated_share": round(float((sensor.capture(lum, EXPOSURE_US, GAIN_DB, rng) == 255).mean()), 4)}
+                         "saturated_share": round(float(np.mean(sensor.capture(lum, EXPOSURE_US, GAIN_DB, rng) == 255)),
+                                                  4)}
 
     med = lambda d: {s: {p: round(float(np.median(v)), 2) for p, v in d[s].items()} for s in d}  # noqa: E731
     result = {
@@ -145,7 +146,8 @@ def main() -> int:
     for s in scenes:
         for p in paths:
             i = scene_info[s]
-            print(f"{s:7s} {i['median_mean_electrons']:9.1f} {i['exact_poisson_pixels']:10d} {i['saturated_share']:6.1%} "
+            print(f"{s:7s} {i['median_mean_electrons']:9.1f} {i['exact_poisson_pixels']:10d} "
+                  f"{i['saturated_share']:6.1%} "
                   f"{p:15s} {result['median_wall_ms'][s][p]:8.1f} {result['median_cpu_ms'][s][p]:7.1f} "
                   f"{result['min_wall_ms'][s][p]:7.1f} {peak_mb[s][p]:8.1f}")
     write_json(result, args.out)

@@ -10,7 +10,7 @@ channel, so X = 1 is "mid-grey" in every channel); the merged radiance R is in X
 is x = (DN − black) / (ADC max − black) ∈ [0, 1] (1 = ADC full scale). A re-exposure at time t sets x = κ·R·t, i.e.
 electrons = c·R·t with c = κ·(electrons at ADC full scale); κ is fitted on the training brackets only.
 
-Parametric response (what the simulator can be configured with): code/255 = offset + (1 − offset)·F(x), with F our
+Parametric response (our curve family; the pedestal is not a sensor config key yet): code/255 = offset + (1 − offset)·F(x), with F our
 sRGB or power-law curve (`expoctl.camera.response`) and an output pedestal `offset` (real 8-bit images sit on a flare /
 black floor of ~13–19 codes). Tying the gain to 1 − offset makes x = 1 (ADC full scale) map to code 255 and removes
 the gain/exposure-scale degeneracy of a power law.
