@@ -207,7 +207,8 @@ def nfm_bars(metrics: dict, path: str | os.PathLike, split: str, kind: str = "dy
                         color=CONTROLLER_STYLE.get(c, (None,))[0], label=label(c))
         axes[a].set_xticks(np.arange(len(fes)), ["ORB", "libviso2", "ORB (SL)", "libviso2 (SL)"])
         axes[a].set_yscale("symlog", linthresh=10)
-        axes[a].set_title(f"{split}, {kind} sections: {stat.replace('_', ' ')}", fontsize=9)
+        axes[a].set_title(f"{split}, {kind} sections: {'median' if stat == 'median_nfm' else 'minimum'} NFM "
+                          "(mean over sections)", fontsize=9)
         axes[a].grid(alpha=0.3, axis="y")
     axes[0].legend(fontsize=7, ncol=2)
     fig.tight_layout()

@@ -89,3 +89,25 @@ def test_no_next_frame_keeps_the_settings():
     oracle.reset(Settings(3.0, 1234.0))
     img = np.full((120, 160, 3), 100, np.uint8)
     assert oracle.update(img, Settings(3.0, 1234.0)) == Settings(3.0, 1234.0)
+
+
+def test_hybrid_settings_average_in_the_scaled_ranges():
+    from expoctl.controllers.oracle import hybrid_settings
+
+    s = hybrid_settings(Settings(0.0, 75.0), Settings(30.0, 30000.0), 0.5)
+    assert s.gain_db == pytest.approx(15.0) and s.exposure_us == pytest.approx(75.0 + 0.5 * 29925.0)
+    assert hybrid_settings(Settings(6.0, 100.0), Settings(0.0, 9000.0), 1.0) == Settings(6.0, 100.0)
+    with pytest.raises(ConfigError, match="controllers.oracle.objective"):
+        OracleParams.from_dict({"objective": "best"})
+
+
+def test_hybrid_objective_commands_between_the_match_and_feature_best():
+    scene = CachedScene(moving_scene(lambda f: 1000.0 if f < 6 else 20000.0))
+    sensor = LinearSensor(noise_dn=2.0)
+    oracle = OracleController(scene, sensor, 5, n_frames=100, first_frame=0,
+                              params=OracleParams(match_width=160, match_nfeatures=500, objective="hybrid"))
+    frames = list(run_closed_loop(scene, [sensor], oracle, Settings(0.0, 5000.0), range(0, 9), 5))
+    exps = OracleParams().exposures_us
+    for t1, s, _, _ in oracle.choices:
+        assert min(exps) <= s.exposure_us <= max(exps) and s.gain_db == 0.0
+    assert len(frames) == 9 and all(f.camera(1).image.mean() > 20 for f in frames)

@@ -13,6 +13,15 @@ Cost: rendering dominates. Candidates that share an exposure share one render (`
 also reads, so the chosen candidate's render is reused for the real frame t+1), and matching runs at `match_width`
 (the ORB front end's working size is scaled down to it). `timings_ms` records the per-frame decision time.
 
+Objective (`objective`): "match" is the rule of issue 7 — most inlier matches with frame t. Measured in the
+simulator, that rule is path-dependent: continuity with an already badly exposed frame t scores higher than a jump
+to a good exposure (overexposed frame t matches an equally overexposed t+1 best), so it can lock into over-
+exposure and lose track at a tunnel exit. "hybrid" (controllers.md §9; the network's own training target, M_hybrid,
+with perfect one-step knowledge) averages the settings of the match-best and the feature-best candidate
+(`hybrid_feat_weight` on the latter, in the linearly scaled ranges the labels use), which pulls it out of such a
+lock-in while still favouring continuity. The hybrid setting is usually off the grid, so the camera's frame t+1
+is rendered once more at it (`inlier` counts in `choices` are then those of the match-best candidate).
+
 The loop does not pass the frame index, so the oracle counts frames from `first_frame` (the first frame the loop
 runs, warm-up included) and advances by one per `update` after `reset`.
 """
@@ -31,6 +40,7 @@ from expoctl.errors import ConfigError
 
 _DEFAULT_EXPOSURES_US = tuple(round(EXPOSURE_US_MAX / 2.0**k, 1) for k in range(9))  # 30000 … 117.2 µs, 1 EV apart
 _DEFAULT_GAINS_DB = (6.0, 12.0, 18.0, 24.0, 30.0)  # 6.02 dB ≈ 1 EV of signal
+OBJECTIVES = ("match", "hybrid")
 
 
 @dataclass(frozen=True)
@@ -42,11 +52,14 @@ class OracleParams:
     match_width: int = 320  # ORB working width for the candidate matching (height keeps the aspect ratio)
     match_nfeatures: int = 1000
     warmup_frames: int = 2  # the oracle needs no settling: evaluate runs it with this many warm-up frames
+    objective: str = "match"  # match (issue 7: most inliers with frame t) | hybrid (controllers.md §9, see module doc)
+    hybrid_feat_weight: float = 0.5  # hybrid: weight of the feature-best candidate's settings (labels' M_hybrid)
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "controllers.oracle") -> "OracleParams":
         d = dict(d or {})
-        known = {"exposures_us", "gains_db", "match_width", "match_nfeatures", "warmup_frames"}
+        known = {"exposures_us", "gains_db", "match_width", "match_nfeatures", "warmup_frames", "objective",
+                 "hybrid_feat_weight"}
         for k in d:
             if k not in known:
                 raise ConfigError(f"{key}.{k}", f"unknown key (known: {', '.join(sorted(known))})")
@@ -61,6 +74,15 @@ class OracleParams:
                 if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                     raise ConfigError(f"{key}.{name}", f"must be an integer >= {lo}, got {v!r}")
                 kw[name] = v
+        if "objective" in d:
+            if d["objective"] not in OBJECTIVES:
+                raise ConfigError(f"{key}.objective", f"must be one of {OBJECTIVES}, got {d['objective']!r}")
+            kw["objective"] = d["objective"]
+        if "hybrid_feat_weight" in d:
+            w = d["hybrid_feat_weight"]
+            if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
+                raise ConfigError(f"{key}.hybrid_feat_weight", f"must be a number in [0, 1], got {w!r}")
+            kw["hybrid_feat_weight"] = float(w)
         return cls(**kw)
 
     def candidates(self) -> list[Settings]:
@@ -166,6 +188,7 @@ class OracleController(Controller):
         frontend = self._frontend(grey.shape)
         prev = frontend.extract(grey)
         best_key, best = None, applied
+        feat_key, feat_best = None, applied
         for cand in self._candidates:
             lum = self.scene.luminance(nxt, cand.exposure_us, self.camera)
             img = self.sensor.capture(lum, cand.exposure_us, cand.gain_db, sensor_rng(self.seed, self.camera, nxt))
@@ -175,9 +198,23 @@ class OracleController(Controller):
             key = (n_inl, n_feat, -cand.gain_db)
             if best_key is None or key > best_key:
                 best_key, best = key, cand
+            fkey = (n_feat, n_inl, -cand.gain_db)
+            if feat_key is None or fkey > feat_key:
+                feat_key, feat_best = fkey, cand
+        if self.params.objective == "hybrid":
+            best = hybrid_settings(feat_best, best, self.params.hybrid_feat_weight)
         self.choices.append((nxt, best, best_key[0], best_key[1]))
         self.timings_ms.append((time.perf_counter() - t0) * 1e3)
         return best
+
+
+def hybrid_settings(feat: Settings, match: Settings, feat_weight: float) -> Settings:
+    """w·feat + (1 − w)·match in the network's linearly scaled gain/exposure (the labels' M_hybrid average)."""
+    from expoctl.camera.ranges import exposure_to_norm, gain_to_norm, norm_to_exposure, norm_to_gain
+
+    g = feat_weight * gain_to_norm(feat.gain_db) + (1 - feat_weight) * gain_to_norm(match.gain_db)
+    e = feat_weight * exposure_to_norm(feat.exposure_us) + (1 - feat_weight) * exposure_to_norm(match.exposure_us)
+    return Settings(float(norm_to_gain(g)), float(norm_to_exposure(e)))
 
 
 def make_oracle(params: dict | None, scene, sensor, seed: int, n_frames: int, first_frame: int = 0,
