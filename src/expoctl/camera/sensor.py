@@ -163,19 +163,26 @@ class Sensor:
     def capture_raw(self, luminance_cd_m2: np.ndarray, exposure_us: float, gain_db: float,
                     rng: np.random.Generator) -> np.ndarray:
         """Linear raw frame in DN (float32, quantised, black level included, clipped to the ADC range)."""
+        args = self._kernel_args(luminance_cd_m2, exposure_us, gain_db, rng)
+        return _raw_kernel(*args)
+
+    def _kernel_args(self, luminance_cd_m2, exposure_us, gain_db, rng):
+        """Validated inputs and this frame's random draws for the compiled kernels.
+
+        Draw order (fixed, so `capture` and `capture_raw` see the same noise for the same generator): one standard
+        normal per pixel, then one uniform per exact-Poisson pixel (its Poisson draw; the normal is its read noise).
+        """
         self._check(luminance_cd_m2, exposure_us, gain_db)
         cfg = self.cfg
-        mu = self.mean_electrons(luminance_cd_m2, exposure_us)
-        electrons = _shot_and_read_noise(mu, rng, cfg.poisson_exact_below, cfg.read_noise_e)
-        # The well caps the collected charge. (Read noise on a full well is below one DN and the ADC clips such pixels
-        # anyway: K₀·full well + black level > ADC range at every gain ≥ 0 dB with the default K₀.)
-        np.minimum(electrons, np.float32(cfg.full_well_e), out=electrons)
+        lum = np.ascontiguousarray(luminance_cd_m2, dtype=np.float32)
+        scale = np.float32(float(self._photons_per_cd_m2_us) * exposure_us * cfg.quantum_efficiency)
+        z = rng.standard_normal(lum.shape, dtype=np.float32)
+        n_small = _count_small(lum, self._gain_map, self._dark_map, scale, np.float32(cfg.poisson_exact_below))
+        z_small = rng.random(max(n_small, 1), dtype=np.float32)
         k = np.float32(cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0))
-        dn = electrons * k
-        dn += np.float32(cfg.black_level_dn)
-        np.rint(dn, out=dn)
-        np.clip(dn, 0.0, np.float32(cfg.adc_max_dn), out=dn)
-        return dn
+        return (lum, self._gain_map, self._dark_map, z, z_small, scale, np.float32(cfg.poisson_exact_below),
+                np.float32(cfg.read_noise_e), np.float32(cfg.full_well_e), k, np.float32(cfg.black_level_dn),
+                np.float32(cfg.adc_max_dn))
 
     def raw_to_8bit(self, raw_dn: np.ndarray) -> np.ndarray:
         """Black-level subtraction, normalisation to the usable ADC range and the response curve → uint8 RGB.
@@ -189,28 +196,9 @@ class Sensor:
         """The 8-bit RGB image the camera delivers for this scene and these settings.
 
         Same model and same random draws as `raw_to_8bit(capture_raw(...))` (a test checks they agree exactly), fused
-        into one compiled pass over the pixels for speed.
+        into one compiled pass over the pixels.
         """
-        self._check(luminance_cd_m2, exposure_us, gain_db)
-        cfg = self.cfg
-        lum = np.ascontiguousarray(luminance_cd_m2, dtype=np.float32)
-        z = rng.standard_normal(lum.shape, dtype=np.float32)
-        scale = float(self._photons_per_cd_m2_us) * exposure_us * cfg.quantum_efficiency
-        mu_small = _small_mean_mask(lum, self._gain_map, self._dark_map, np.float32(scale), np.float32(cfg.poisson_exact_below))
-        poisson = None
-        if mu_small is not None:
-            mu = self.mean_electrons(lum, exposure_us)
-            poisson = np.zeros(lum.shape, np.float32)
-            poisson[mu_small] = rng.poisson(mu[mu_small]).astype(np.float32)
-            mask = mu_small
-        else:
-            mask = np.zeros((1, 1, 1), np.bool_)
-            poisson = np.zeros((1, 1, 1), np.float32)
-        k = cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0)
-        return _fused_capture(lum, self._gain_map, self._dark_map, z, mask, poisson, mu_small is not None,
-                              np.float32(scale), np.float32(cfg.read_noise_e), np.float32(cfg.full_well_e),
-                              np.float32(k), np.float32(cfg.black_level_dn), np.float32(cfg.adc_max_dn),
-                              self._dn_to_8bit)
+        return _capture_kernel(*self._kernel_args(luminance_cd_m2, exposure_us, gain_db, rng), self._dn_to_8bit)
 
     def saturation_luminance_cd_m2(self, exposure_us: float, gain_db: float) -> float:
         """Scene luminance at which a pixel (without PRNU) reaches the first of full well or ADC full scale."""
@@ -233,60 +221,66 @@ class Sensor:
             raise InputError(f"luminance_cd_m2 contains {'NaN' if math.isnan(low) else '-inf'} values")
 
 
-def _shot_and_read_noise(mu: np.ndarray, rng: np.random.Generator, exact_below: float,
-                         read_noise_e: float) -> np.ndarray:
-    """Poisson(mu) shot noise plus N(0, σ_read²) read noise, in electrons (float32).
+@numba.njit(cache=True, inline="always")
+def _pixel_dn(lum, gain, dark, z, z_small, j, scale, exact_below, read_noise, full_well, k, black, adc_max):
+    """One pixel: mean electrons → shot + read noise → full-well clip → DN. Returns (dn, next index into z_small).
 
-    Where mu ≥ `exact_below` the sum is Gaussian with mean mu and variance mu + σ², drawn with one normal variate;
-    where mu is small (dark pixels) the shot noise is drawn exactly from the Poisson law and the same normal variate
-    supplies the read noise (the two pixel sets are disjoint, so the draws stay independent).
+    Mean below `exact_below`: exact Poisson by inverse transform of the uniform z_small[j], read noise from z.
+    Above: a Gaussian with the Poisson mean and variance plus the read noise variance (mean and variance exact; only
+    the skewness 1/√μ ≤ 0.32 is lost).
     """
-    z = rng.standard_normal(mu.shape, dtype=np.float32)
-    var = mu + np.float32(read_noise_e ** 2)
-    out = mu + np.sqrt(var, out=var) * z
-    small = mu < exact_below
-    if small.any():
-        out[small] = rng.poisson(mu[small]).astype(np.float32) + np.float32(read_noise_e) * z[small]
+    mu = max(lum * scale * gain + dark, np.float32(0.0))
+    if mu < exact_below:
+        u = z_small[j]
+        n = 0
+        p = math.exp(-mu)
+        c = p
+        while u > c and n < 200:
+            n += 1
+            p *= mu / n
+            c += p
+        e = np.float32(n) + read_noise * z
+        j += 1
+    else:
+        e = mu + np.float32(math.sqrt(mu + read_noise * read_noise)) * z
+    e = min(e, full_well)
+    dn = np.float32(np.rint(e * k + black))
+    return min(max(dn, np.float32(0.0)), adc_max), j
+
+
+@numba.njit(cache=True)
+def _count_small(lum, gain_map, dark_map, scale, exact_below):
+    fl, fg, fd = lum.ravel(), gain_map.ravel(), dark_map.ravel()
+    n = 0
+    for i in range(fl.size):
+        if max(fl[i] * scale * fg[i] + fd[i], np.float32(0.0)) < exact_below:
+            n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def _raw_kernel(lum, gain_map, dark_map, z, z_small, scale, exact_below, read_noise, full_well, k, black, adc_max):
+    out = np.empty(lum.shape, np.float32)
+    fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
+    j = 0
+    for i in range(fl.size):
+        fo[i], j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
+                             black, adc_max)
+    return out
+
+
+@numba.njit(cache=True)
+def _capture_kernel(lum, gain_map, dark_map, z, z_small, scale, exact_below, read_noise, full_well, k, black,
+                    adc_max, lut):
+    out = np.empty(lum.shape, np.uint8)
+    fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
+    j = 0
+    for i in range(fl.size):
+        dn, j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
+                          black, adc_max)
+        fo[i] = lut[np.int32(dn)]
     return out
 
 
 def _finite_number(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-@numba.njit(cache=True)
-def _small_mean_mask_kernel(lum, gain_map, dark_map, scale, exact_below, out):
-    found = False
-    flat_l, flat_g, flat_d, flat_o = lum.ravel(), gain_map.ravel(), dark_map.ravel(), out.ravel()
-    for i in range(flat_l.size):
-        mu = max(flat_l[i] * scale * flat_g[i] + flat_d[i], np.float32(0.0))
-        small = mu < exact_below
-        flat_o[i] = small
-        found |= small
-    return found
-
-
-def _small_mean_mask(lum, gain_map, dark_map, scale, exact_below):
-    """Boolean mask of pixels whose mean electrons fall in the exact-Poisson regime, or None if there are none."""
-    out = np.empty(lum.shape, np.bool_)
-    return out if _small_mean_mask_kernel(lum, gain_map, dark_map, scale, exact_below, out) else None
-
-
-@numba.njit(cache=True)
-def _fused_capture(lum, gain_map, dark_map, z, small_mask, poisson, has_small, scale, read_noise, full_well, k,
-                   black, adc_max, lut):
-    out = np.empty(lum.shape, np.uint8)
-    fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
-    fm, fp = small_mask.ravel(), poisson.ravel()
-    read_var = read_noise * read_noise
-    for i in range(fl.size):
-        mu = max(fl[i] * scale * fg[i] + fd[i], np.float32(0.0))
-        if has_small and fm[i]:
-            e = fp[i] + read_noise * fz[i]
-        else:
-            e = mu + np.sqrt(mu + read_var) * fz[i]
-        e = min(e, full_well)
-        dn = np.float32(np.rint(e * k + black))
-        dn = min(max(dn, np.float32(0.0)), adc_max)
-        fo[i] = lut[np.int32(dn)]
-    return out
