@@ -49,7 +49,7 @@ def _loop(level, frames, warmup, noise_dn=2.0, seed=5):
     sensor = LinearSensor(noise_dn=noise_dn)
     first = max(0, frames.start - warmup)
     oracle = OracleController(scene, sensor, seed, n_frames=100, first_frame=first,
-                              params=OracleParams(match_width=160, match_nfeatures=500))
+                              params=OracleParams(match_width=160, match_nfeatures=500, objective="match"))
     out = list(run_closed_loop(scene, [sensor], oracle, Settings(0.0, 5000.0), frames, seed, warmup_frames=warmup))
     return out, oracle, scene
 

@@ -1,26 +1,29 @@
 """The oracle controller (simulator only; controllers.md §9): the greedy one-step upper bound.
 
 At frame t it renders frame t+1 for every candidate (gain, exposure) from the same pose, with the same sensor noise
-the camera will really get at t+1 (`sensor_rng(seed, camera, t+1)`), and commands the candidate whose image has the
-most inlier matches with frame t (ties: more features, then lower gain). No causal controller can know frame t+1's
-scene, so none can beat this choice at one step; it is not a global optimum (greedy, discrete grid).
+the camera will really get at t+1 (`sensor_rng(seed, camera, t+1)`), and scores each candidate image against frame
+t: inlier matches (ties: more features, then lower gain) and feature count. No causal controller can know frame
+t+1's scene; the oracle is still not a global optimum (greedy, one step, discrete grid).
+
+Objective (`objective`):
+- "match" — issue 7's rule: command the candidate with the most inlier matches with frame t. Measured in the
+  simulator (validation passage + test exit windows, 320×240) this rule is path-dependent: continuity with an
+  already badly exposed frame t outscores a jump to a good exposure (an overexposed frame t matches an equally
+  overexposed t+1 best), so it locks into overexposure and lost VO track on both windows (dynamic ORB minimum NFM
+  12 / 11 vs AG+AE 87 / 132) — no upper bound.
+- "hybrid" (default; controllers.md §9 and the network's own training target M_hybrid, with perfect one-step
+  knowledge): the average of the match-best and the feature-best candidate's settings (`hybrid_feat_weight` on the
+  latter, in the linearly scaled ranges the labels use). The feature term pulls it out of such lock-ins while the
+  match term keeps transitions gradual. Same windows: tracked both, dynamic ORB minimum 89 / 177, median 464 / 329
+  (AG+AE 192 / 250). The hybrid setting is usually off the grid, so frame t+1 is rendered once more at it.
 
 Candidates (config `controllers.oracle`): an exposure-first ladder — every exposure of `exposures_us` at 0 dB, then
 every gain of `gains_db` at the longest exposure — as AG+AE itself spends exposure before gain. Default: 1 EV steps
 over the whole range (9 exposures 30 ms … 117 µs, gains 6 … 30 dB at 30 ms): 14 candidates, 9 renders per frame.
 
 Cost: rendering dominates. Candidates that share an exposure share one render (`CachedScene`, which the closed loop
-also reads, so the chosen candidate's render is reused for the real frame t+1), and matching runs at `match_width`
-(the ORB front end's working size is scaled down to it). `timings_ms` records the per-frame decision time.
-
-Objective (`objective`): "match" is the rule of issue 7 — most inlier matches with frame t. Measured in the
-simulator, that rule is path-dependent: continuity with an already badly exposed frame t scores higher than a jump
-to a good exposure (overexposed frame t matches an equally overexposed t+1 best), so it can lock into over-
-exposure and lose track at a tunnel exit. "hybrid" (controllers.md §9; the network's own training target, M_hybrid,
-with perfect one-step knowledge) averages the settings of the match-best and the feature-best candidate
-(`hybrid_feat_weight` on the latter, in the linearly scaled ranges the labels use), which pulls it out of such a
-lock-in while still favouring continuity. The hybrid setting is usually off the grid, so the camera's frame t+1
-is rendered once more at it (`inlier` counts in `choices` are then those of the match-best candidate).
+also reads, so a chosen grid candidate's render is reused for the real frame t+1), and matching runs at
+`match_width` (the ORB front end's working size is scaled down to it). `timings_ms` records each decision's time.
 
 The loop does not pass the frame index, so the oracle counts frames from `first_frame` (the first frame the loop
 runs, warm-up included) and advances by one per `update` after `reset`.
@@ -51,8 +54,8 @@ class OracleParams:
     gains_db: tuple[float, ...] = _DEFAULT_GAINS_DB
     match_width: int = 320  # ORB working width for the candidate matching (height keeps the aspect ratio)
     match_nfeatures: int = 1000
-    warmup_frames: int = 2  # the oracle needs no settling: evaluate runs it with this many warm-up frames
-    objective: str = "match"  # match (issue 7: most inliers with frame t) | hybrid (controllers.md §9, see module doc)
+    warmup_frames: int = 10  # evaluate runs the oracle with min(this, evaluate.warmup_frames) warm-up frames
+    objective: str = "hybrid"  # hybrid (controllers.md §9) | match (issue 7's rule); see the module docstring
     hybrid_feat_weight: float = 0.5  # hybrid: weight of the feature-best candidate's settings (labels' M_hybrid)
 
     @classmethod
