@@ -47,6 +47,9 @@ STAGE_KEYS: dict[str, list[str]] = {
     "samples": ["samples", "paths.frames", "paths.labels", "paths.samples"],
     "train": ["seed", "model", "train", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
               "paths.reports_dir"],
+    "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "iteration2.paths.model",
+                 "paths.frames", "paths.reports_dir"],
+    "report": ["report", "paths.reports_dir"],
 }
 
 

@@ -28,7 +28,7 @@ def compose_config(overrides: list[str], conf_dir=PROJECT_ROOT / "conf") -> dict
         with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
             cfg = compose(config_name="config", overrides=overrides)
         return OmegaConf.to_container(cfg, resolve=True)
-    except (HydraException, OmegaConfBaseException) as exc:
+    except (HydraException, OmegaConfBaseException, yaml.YAMLError) as exc:
         raise InputError(f"params.yaml overrides {overrides}: {str(exc).splitlines()[0]}") from None
 
 

@@ -22,8 +22,16 @@ from stages.common import PROJECT_ROOT, stage_main
 log = logging.getLogger(__name__)
 
 
+def final_model_config(cfg: dict) -> dict:
+    """The learned controller under evaluation is the pipeline's final model: iteration 2's (which is iteration 1's
+    when `iteration2.enabled` is false, see stages/train.py)."""
+    return {**cfg, "paths": {**cfg["paths"], "model": cfg["iteration2"]["paths"]["model"]}}
+
+
 def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
+    if "iteration2" in cfg:
+        cfg = final_model_config(cfg)
     t0 = time.perf_counter()
     result = evaluate(cfg, root, progress=sys.stderr.isatty())
     seconds = time.perf_counter() - t0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import pandas as pd
@@ -16,7 +17,7 @@ def _ran(output: str) -> set[str]:
 
 
 ITERATION2 = {"collect_iter2", "ingest_iter2", "features_iter2", "labels_iter2", "samples_iter2", "train_iter2"}
-ALL_STAGES = {"compose", "collect", "ingest", "features", "labels", "samples", "train"} | ITERATION2
+ALL_STAGES = {"compose", "collect", "ingest", "features", "labels", "samples", "train", "evaluate", "report"} | ITERATION2
 
 
 def test_repro_noop_and_per_key_rerun(project_copy):
@@ -30,8 +31,18 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert set(frames["split"]) == {"train", "validation", "test"} and "dynamic" in set(frames["section"])
     for out in ("data/features.parquet", "data/matches.parquet", "data/labels.parquet", "data/samples.parquet",
                 "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md",
-                "models/controller_iter2.pt", "reports/iter2/train.json"):
+                "models/controller_iter2.pt", "reports/iter2/train.json", "reports/metrics.json",
+                "reports/eval/frames.parquet", "reports/results.md"):
         assert (p.root / out).is_file(), out
+    metrics = json.loads((p.root / "reports" / "metrics.json").read_text())
+    assert set(metrics) == {"validation", "test"}
+    for split in metrics.values():
+        assert set(split) == {"agae", "shin", "shim", "mean_intensity", "fixed", "learned", "oracle"}
+        for entry in split.values():
+            assert set(entry["dynamic"]) == {"orb", "viso", "orb_sumlog", "viso_sumlog"}
+            n_ok, n_runs = entry["tracking_success"]
+            assert 0 <= n_ok <= n_runs and n_runs >= 1
+    assert list((p.root / "reports" / "figures").glob("*.png"))
     # iteration 2: one more training sequence driven by the iteration-1 network, trained on both data sets
     frames2 = pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet")
     assert set(frames["sequence"]) < set(frames2["sequence"])
@@ -44,7 +55,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     # Switching iteration 2 off re-runs exactly the iteration-2 stages; the final model is then iteration 1's.
     p.set_overrides(["scale=fixture", "iteration2.enabled=false"])
     third = p.dvc("repro")
-    assert _ran(third.stdout) == {"compose"} | ITERATION2, third.stdout
+    assert _ran(third.stdout) == {"compose", "evaluate", "report"} | ITERATION2, third.stdout
     assert (p.root / "models" / "controller_iter2.pt").read_bytes() == (p.root / "models" / "controller.pt").read_bytes()
     assert pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet").equals(frames)
 
@@ -52,8 +63,12 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     p.set_overrides(["scale=fixture", "iteration2.enabled=false", "+unused_note=hello"])
     fourth = p.dvc("repro")
     assert _ran(fourth.stdout) == {"compose"}, fourth.stdout
+    # A leaf key (the report's layout): compose and report only.
+    p.set_overrides(["scale=fixture", "iteration2.enabled=false", "+unused_note=hello", "report.strip_columns=4"])
+    assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
     runs = p.stage_runs()
-    assert runs["compose"] == 3 and runs["train"] == 1 and runs["train_iter2"] == 2
+    assert runs["report"] == 3 and runs["evaluate"] == 2
+    assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter2"] == 2
 
 
 def test_bad_raw_data_stops_cleanly(project_copy):
