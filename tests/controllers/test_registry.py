@@ -16,7 +16,10 @@ BASELINES = ["agae", "fixed", "mean_intensity", "shim", "shin"]
 
 
 def _conf() -> dict:
-    return yaml.safe_load(CONF.read_text())
+    """The controllers group as the stages see it: composed, interpolations (e.g. ${sensor.response_curve}) resolved."""
+    from stages.compose import compose_config
+
+    return compose_config([])["controllers"]
 
 
 @pytest.mark.parametrize("name", BASELINES)
