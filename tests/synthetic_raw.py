@@ -29,7 +29,6 @@ def textured_frame(rng: np.random.Generator, height: int, width: int, shift_px: 
 def write_synthetic_sequence(seq_dir: Path, n_frames: int = 6, height: int = 48, width: int = 64, seed: int = 0,
                              sections: list | None = None) -> Path:
     """A valid raw sequence: both cameras, monotonic timestamps, settings inside the ranges."""
-    rng = np.random.default_rng(seed)
     meta = {
         "source": "sim",
         "rig": {"baseline_m": 0.0392, "fps": 15.0, "resolution": [width, height],

@@ -14,7 +14,7 @@ size. `min_input_size` is the smallest input that leaves a ≥ 1×1 map.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 
 import torch
 from torch import nn

@@ -222,7 +222,7 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
         if split not in metrics:
             continue
         md += [f"## Table {num}: NFM, {SPLIT_TITLE[split]}", "", nfm_table(metrics, split), "",
-               f"With SumLog (SL):", "", nfm_table(metrics, split, sumlog=True), ""]
+               "With SumLog (SL):", "", nfm_table(metrics, split, sumlog=True), ""]
     md += ["## Table III: VO tracking successes", "",
            "Monocular frame-to-frame VO (ORB + essential matrix); a run fails when the tracked inliers of a frame pair "
            "fall below the threshold at any frame. ATE: RMSE after rigid alignment, scale from ground truth, over "

@@ -4,7 +4,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from expoctl.controllers.base import Controller, Settings
 from expoctl.controllers.registry import CONTROLLERS, make_controller, register

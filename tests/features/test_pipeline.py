@@ -3,7 +3,6 @@ single extraction per image, and clear errors for bad input."""
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pandas as pd
 import pytest

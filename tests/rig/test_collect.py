@@ -1,6 +1,5 @@
 import copy
 
-import numpy as np
 import pandas as pd
 import pytest
 import yaml

@@ -10,7 +10,6 @@ import textwrap
 from pathlib import Path
 
 import mlflow
-import numpy as np
 import pytest
 import torch
 import yaml

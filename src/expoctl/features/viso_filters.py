@@ -25,10 +25,6 @@ def half_resolution(grey: np.ndarray) -> np.ndarray:
     return ((g[0::2, 0::2] + g[0::2, 1::2] + g[1::2, 0::2] + g[1::2, 1::2]) >> 2).astype(np.uint8)
 
 
-def _correlate_sep(img_f32: np.ndarray, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
-    return cv2.sepFilter2D(img_f32, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_REFLECT_101)
-
-
 @njit(cache=True)
 def _sobel_row_pass(img, y, r, sm, de):
     # s = (1, 4, 6, 4, 1) smooths, d = (1, 2, 0, -2, -1) differentiates (left / top brighter → +)

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from expoctl.world import route as rt
 

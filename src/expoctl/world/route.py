@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from expoctl.world.cities import ROADSIDE_KINDS, route_length_m
+from expoctl.world.cities import route_length_m
 
 # --- segment table columns (float64), shared with the ray caster
 P0, F, R, U, NS, NE, P1 = 0, 3, 6, 9, 12, 15, 18  # 3-vectors: start point, forward, right, up, start/end plane normals, end point
@@ -42,7 +42,7 @@ class Route:
         route = city_cfg["route"]
         self.grade_amplitude_m = float(route["grade_amplitude_m"])
         self.grade_cycles = int(route["grade_cycles"])
-        starts, x, y, psi = [], 0.0, 0.0, 0.0
+        x, y, psi = 0.0, 0.0, 0.0
         s = 0.0
         self.pieces = []  # (s_start, length, curvature, x0, y0, psi0)
         for p in route["pieces"]:
@@ -126,7 +126,6 @@ def build_segments(cfg: dict, route: Route) -> np.ndarray:
     rng = np.random.default_rng([int(cfg["seed"]), 11])
     L = route.length_m
     cuts = {0.0}
-    s = 0.0
     for ps, length, kappa, *_ in route.pieces:
         cuts.add(ps)
         if kappa != 0.0:
