@@ -37,14 +37,16 @@ class ProjectCopy:
         import yaml
         (self.root / "params.yaml").write_text(yaml.safe_dump({"overrides": overrides}))
 
-    def stage_runs(self) -> dict[str, int]:
-        """Number of MLflow runs per `stage` tag in this copy's own store."""
+    def stage_runs(self, children: bool = False) -> dict[str, int]:
+        """Number of MLflow stage runs (or, with `children`, of their nested child runs) per `stage` tag in this
+        copy's own store."""
         import mlflow
         client = mlflow.MlflowClient(tracking_uri=self.env["MLFLOW_TRACKING_URI"])
         exp = client.get_experiment_by_name("expoctl")
         counts: dict[str, int] = {}
-        for r in client.search_runs([exp.experiment_id], max_results=1000):
-            counts[r.data.tags["stage"]] = counts.get(r.data.tags["stage"], 0) + 1
+        for r in client.search_runs([exp.experiment_id], max_results=5000):
+            if ("mlflow.parentRunId" in r.data.tags) == children:
+                counts[r.data.tags["stage"]] = counts.get(r.data.tags["stage"], 0) + 1
         return counts
 
 

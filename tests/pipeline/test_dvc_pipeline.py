@@ -48,6 +48,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert set(frames["sequence"]) < set(frames2["sequence"])
     assert frames2["sequence"].nunique() == frames["sequence"].nunique() + 1
     assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
+    assert p.stage_runs(children=True) == {"evaluate": 7 * 2}  # one per (controller, city), for the MLflow UI
 
     second = p.dvc("repro")
     assert _ran(second.stdout) == set(), second.stdout
