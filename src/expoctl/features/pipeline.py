@@ -26,6 +26,7 @@ import pandas as pd
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.frontend import PairCounts
 from expoctl.features.sumlog import SumLogGrid
+from expoctl.rig.raw import decode_8bit_image
 
 FRONTEND_NAMES = ("orb", "viso")
 FRAMES_COLUMNS = ("sequence", "frame_id", "camera", "image_path")
@@ -93,14 +94,7 @@ def read_grey(path: str | os.PathLike) -> np.ndarray:
     the PNG decoder's own conversion, so a file and the array it was written from give the same grey image.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: image file missing")
-    data = np.fromfile(path, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise InputError(f"{path}: unreadable or corrupt image")
-    if img.dtype != np.uint8:
-        raise InputError(f"{path}: expected an 8-bit image, got {img.dtype}")
+    img = decode_8bit_image(path)
     if img.ndim == 2:
         return img
     if img.ndim == 3 and img.shape[2] == 3:

@@ -92,17 +92,24 @@ def read_png_size(path: str | os.PathLike) -> tuple[int, int] | None:
     return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
-def read_image_rgb(path: str | os.PathLike) -> np.ndarray:
-    """Decode an 8-bit RGB image (H×W×3 uint8); InputError naming the file if unreadable or not 8-bit colour."""
+def decode_8bit_image(path: str | os.PathLike) -> np.ndarray:
+    """Decode an image file as stored (grey H×W, or BGR/BGRA H×W×C, uint8); InputError naming the file if it is
+    missing, unreadable or not 8-bit."""
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise InputError(f"{path}: image file missing")
     data = np.fromfile(path, dtype=np.uint8)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise InputError(f"{path}: unreadable or corrupt image")
     if img.dtype != np.uint8:
-        raise InputError(f"{path}: expected 8-bit image, got {img.dtype}")
+        raise InputError(f"{path}: expected an 8-bit image, got {img.dtype}")
+    return img
+
+
+def read_image_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Decode an 8-bit RGB image (H×W×3 uint8); InputError naming the file if unreadable or not 8-bit colour."""
+    img = decode_8bit_image(path)
     if img.ndim != 3 or img.shape[2] not in (3, 4):
         raise InputError(f"{path}: expected an RGB image, got shape {img.shape}")
     return np.ascontiguousarray(img[..., 2::-1])  # BGR(A) → RGB
