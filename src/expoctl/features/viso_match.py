@@ -190,7 +190,7 @@ def flow_prior(matches: np.ndarray, grid: Grid, radius: float) -> np.ndarray:
                     np.minimum.at(lo[:, :, axis], (a[ok], b[ok]), d[ok, axis])
                     np.maximum.at(hi[:, :, axis], (a[ok], b[ok]), d[ok, axis])
     empty = ~np.isfinite(lo[:, :, 0])
-    lo[empty] = 0.0  # placeholders (replaced by ±radius below) so that the arithmetic stays finite
+    lo[empty] = 0.0  # temporary finite values for the arithmetic below; empty cells get ±radius after it
     hi[empty] = 0.0
     width = hi - lo
     grow = np.where(width < PRIOR_MIN_WIDTH, np.ceil((PRIOR_MIN_WIDTH - width) / 2), 0.0)
