@@ -39,6 +39,7 @@ def main() -> None:
     ap.add_argument("--batch-size", type=int, default=32)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--exposure-scale", choices=["linear", "log"], default="log")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "input_size_error.json"))
     args = ap.parse_args()
 
@@ -53,9 +54,10 @@ def main() -> None:
                       num_threads=args.threads, max_train_samples=args.max_train, max_validation_samples=args.max_val)
     rows = []
     for size in args.sizes:
-        sets = load_sample_sets_from_files(args.samples, args.frames, args.images_dir, size)
+        sets = load_sample_sets_from_files(args.samples, args.frames, args.images_dir, size,
+                                           exposure_scale=args.exposure_scale)
         t0 = time.perf_counter()
-        r = fit(ModelConfig(input_size=(size, size)), cfg, sets["train"], sets["validation"], args.seed,
+        r = fit(ModelConfig(input_size=(size, size), exposure_scale=args.exposure_scale), cfg, sets["train"], sets["validation"], args.seed,
                 log=lambda s, size=size: print(f"[{size}] {s}", flush=True))
         m = r.metrics
         rows.append({"input_size": size, "train_seconds": time.perf_counter() - t0,

@@ -119,7 +119,8 @@ def run_trial(cfg: dict, sweep: dict, parent_run_id: str | None) -> float:
         mlflow.log_params({"overrides": json.dumps(overrides),
                            **{k: str(v) for k, v in flatten({"model": trial_cfg["model"],
                                                              "train": trial_cfg["train"]}).items()}})
-        key = (json.dumps(trial_cfg["paths"], sort_keys=True), json.dumps(trial_cfg["model"].get("input_size")))
+        key = (json.dumps(trial_cfg["paths"], sort_keys=True), json.dumps(trial_cfg["model"].get("input_size")),
+               str(trial_cfg["model"].get("exposure_scale")))
         result, sets, _ = train_from_config(trial_cfg, sets=_SETS_CACHE.get(key),
                                             on_epoch=lambda e, m: mlflow.log_metrics(m, step=e))
         _SETS_CACHE.clear()

@@ -58,7 +58,7 @@ def train_from_config(cfg: dict, on_epoch=None, sets=None):
     paths = cfg["paths"]
     if sets is None:
         sets = load_sample_sets_from_files(_path(paths["samples"]), _path(paths["frames"]), _path(paths["images_dir"]),
-                                           model_cfg.input_size)
+                                           model_cfg.input_size, exposure_scale=model_cfg.exposure_scale)
     for split in ("train", "validation"):
         if split not in sets:
             raise InputError(f"{paths['samples']}: no samples with split '{split}'")

@@ -8,6 +8,9 @@ step share their frames, so the cache holds each frame once. A batch is then an 
 
 Augmentation (optional): a horizontal flip shared by the three frames of a sample (flipping them independently
 would invent motion that never happened); gain/exposure planes are constant and unaffected.
+
+Exposure scaling: samples.parquet stores targets in the paper's linear scaling (the data contract); the planes and
+targets handed to the network use `exposure_scale` (the model's, `expoctl.camera.ranges`), converted here once.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+from expoctl.camera.ranges import rescale_exposure_norm
 from expoctl.errors import InputError
 from expoctl.preprocess import N_FRAMES, as_hw, assemble_input, prepare_frame, settings_to_norm
 
@@ -35,10 +39,11 @@ class SampleSet:
     frame_idx: torch.Tensor  # (S, 3) int64 rows of `frames` for t, t−1, t−2
     gain_norm: torch.Tensor  # (S, 3) float32
     exposure_norm: torch.Tensor  # (S, 3) float32
-    targets: torch.Tensor  # (S, 2) float32 [gain_norm, exposure_norm]
+    targets: torch.Tensor  # (S, 2) float32 [gain_norm, exposure_norm], exposure in `exposure_scale`
     sample_id: np.ndarray  # (S,)
     store_hw: tuple[int, int]
     input_hw: tuple[int, int]
+    exposure_scale: str = "linear"  # scaling of exposure_norm and targets[:, 1] (expoctl.camera.ranges)
 
     def __len__(self) -> int:
         return int(self.frame_idx.shape[0])
@@ -61,8 +66,9 @@ def _require(df: pd.DataFrame, cols, what: str) -> None:
 
 def load_sample_sets(samples: pd.DataFrame, frames: pd.DataFrame, images_dir: str | Path, input_size,
                      splits=("train", "validation"), samples_name: str = "samples",
-                     frames_name: str = "frames") -> dict[str, SampleSet]:
-    """Build one SampleSet per requested split (splits absent from `samples` get no entry)."""
+                     frames_name: str = "frames", exposure_scale: str = "linear") -> dict[str, SampleSet]:
+    """Build one SampleSet per requested split (splits absent from `samples` get no entry); planes and targets in
+    `exposure_scale` (the model's)."""
     _require(samples, SAMPLE_COLUMNS, samples_name)
     _require(frames, FRAME_COLUMNS, frames_name)
     images_dir = Path(images_dir)
@@ -124,9 +130,12 @@ def load_sample_sets(samples: pd.DataFrame, frames: pd.DataFrame, images_dir: st
     merged = merged.sort_values(["row", "slot"])
     n = len(samples)
     frame_idx = merged["cache_row"].to_numpy(np.int64).reshape(n, N_FRAMES)
-    g, e = settings_to_norm(merged["gain_db"].to_numpy(np.float64), merged["exposure_us"].to_numpy(np.float64))
+    g, e = settings_to_norm(merged["gain_db"].to_numpy(np.float64), merged["exposure_us"].to_numpy(np.float64),
+                            exposure_scale)
     g, e = g.reshape(n, N_FRAMES), e.reshape(n, N_FRAMES)
-    targets = samples[["target_gain_norm", "target_exposure_norm"]].to_numpy(np.float32)
+    targets = np.stack([samples["target_gain_norm"].to_numpy(np.float64),
+                        rescale_exposure_norm(samples["target_exposure_norm"].to_numpy(np.float64), "linear",
+                                              exposure_scale)], axis=1).astype(np.float32)
 
     frames_t = torch.from_numpy(cache)
     out = {}
@@ -143,11 +152,13 @@ def load_sample_sets(samples: pd.DataFrame, frames: pd.DataFrame, images_dir: st
             sample_id=samples["sample_id"].to_numpy()[sel],
             store_hw=store_hw,
             input_hw=input_hw,
+            exposure_scale=exposure_scale,
         )
     return out
 
 
-def load_sample_sets_from_files(samples_path, frames_path, images_dir, input_size, splits=("train", "validation")):
+def load_sample_sets_from_files(samples_path, frames_path, images_dir, input_size, splits=("train", "validation"),
+                                exposure_scale: str = "linear"):
     """As `load_sample_sets`, reading the two Parquet tables (errors name the files)."""
     tables = []
     for p in (samples_path, frames_path):
@@ -159,4 +170,5 @@ def load_sample_sets_from_files(samples_path, frames_path, images_dir, input_siz
         except Exception as exc:  # pyarrow raises several types for corrupt files
             raise InputError(f"{p}: cannot read Parquet ({exc})") from None
     return load_sample_sets(tables[0], tables[1], images_dir, input_size, splits,
-                            samples_name=str(samples_path), frames_name=str(frames_path))
+                            samples_name=str(samples_path), frames_name=str(frames_path),
+                            exposure_scale=exposure_scale)

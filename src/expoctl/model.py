@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torch import nn
 
+from expoctl.camera.ranges import EXPOSURE_SCALES
 from expoctl.errors import ConfigError
 from expoctl.preprocess import N_INPUT_CHANNELS, as_hw
 
@@ -31,6 +32,9 @@ class ModelConfig:
     pool: int = 3  # max-pool size = stride after each of the first len(conv_kernels) convs
     fc_widths: tuple[int, ...] = (128, 64, 32)
     dropout: float = 0.4
+    # how the exposure planes and the exposure output are scaled to [0, 1] (expoctl.camera.ranges): "linear" is the
+    # paper's; "log" (EV) is what the configs use — part of the network's interface, so it lives with the architecture
+    exposure_scale: str = "linear"
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "model") -> "ModelConfig":
@@ -49,6 +53,8 @@ class ModelConfig:
                 d["pool"] = int(d["pool"])
             if "dropout" in d:
                 d["dropout"] = float(d["dropout"])
+            if "exposure_scale" in d:
+                d["exposure_scale"] = str(d["exposure_scale"])
         except (TypeError, ValueError) as exc:
             raise ConfigError(prefix, f"bad value: {exc}") from None
         cfg = cls(**d)
@@ -65,6 +71,8 @@ class ModelConfig:
             raise ConfigError(f"{prefix}.conv_widths", "widths must be ≥ 1")
         if any(k < 1 for k in self.conv_kernels) or self.pool < 1:
             raise ConfigError(f"{prefix}.conv_kernels", "kernels and pool must be ≥ 1")
+        if self.exposure_scale not in EXPOSURE_SCALES:
+            raise ConfigError(f"{prefix}.exposure_scale", f"must be one of {list(EXPOSURE_SCALES)}, got {self.exposure_scale!r}")
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"{prefix}.dropout", f"must be in [0, 1), got {self.dropout}")
         for axis, n in zip(("height", "width"), self.input_size):

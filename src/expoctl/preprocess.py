@@ -12,7 +12,7 @@ deployment, and deployed on BGR. Here both training (`expoctl.dataset`) and the 
    so a deployed frame passes through the same resize chain as a training frame did.
 2. `assemble_input(frames_uint8, gain_norm, exposure_norm)` — a batch of three-frame stacks → float32 tensor
    (B, 15, h, w). Images become RGB in [0, 1] (uint8 / 255); every frame gets a constant plane of its scaled gain and
-   one of its scaled exposure (`expoctl.camera.ranges`, also in [0, 1] — "scaled to the image intensity range").
+   one of its scaled exposure (`expoctl.camera.ranges`, linear or log per `model.exposure_scale`, also in [0, 1] — "scaled to the image intensity range").
 
 Channel order (15 = 3 frames × 5): frame t → channels 0–4, frame t−1 → 5–9, frame t−2 → 10–14; within a frame
 [R, G, B, gain_norm, exposure_norm].
@@ -59,9 +59,11 @@ def prepare_frame(image_uint8_rgb: np.ndarray, store_hw, input_hw) -> np.ndarray
     return np.ascontiguousarray(resize_area(stored, as_hw(input_hw)))
 
 
-def settings_to_norm(gain_db, exposure_us) -> tuple[np.ndarray, np.ndarray]:
-    """Settings → the float32 [0, 1] values the planes carry (same scaling as the targets)."""
-    return gain_to_norm(gain_db).astype(np.float32), exposure_to_norm(exposure_us).astype(np.float32)
+def settings_to_norm(gain_db, exposure_us, exposure_scale: str = "linear") -> tuple[np.ndarray, np.ndarray]:
+    """Settings → the float32 [0, 1] values the planes carry (same scaling as the model's targets:
+    `model.exposure_scale`, see `expoctl.camera.ranges`)."""
+    return (gain_to_norm(gain_db).astype(np.float32),
+            exposure_to_norm(exposure_us, exposure_scale).astype(np.float32))
 
 
 def assemble_input(frames_uint8: torch.Tensor, gain_norm: torch.Tensor, exposure_norm: torch.Tensor) -> torch.Tensor:

@@ -3,7 +3,9 @@
 Loss (paper): L = ε·mean|Ĝ − G*| + (1 − ε)·mean|Ê − E*| on [0, 1]-scaled targets.
 Errors in physical units, as the deployed controller would see them (outputs clamped to [0, 1], then unscaled):
 gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The constant predictor is the per-output median
-of the training targets (the L1-optimal constant); the model's errors are reported next to it.
+of the training targets (the L1-optimal constant); the model's errors are reported next to it. A second, stronger
+reference is the hold predictor: "keep frame t's settings" (what a controller that never reacts would command). A
+network that has learnt anything about exposure must beat both.
 
 Distributed data parallel: when `torch.distributed` is initialised (torchrun), each process takes an interleaved
 share of every global batch (`batch_size` stays the global batch, so hyperparameters mean the same at any
@@ -102,13 +104,16 @@ def weighted_l1(pred: torch.Tensor, target: torch.Tensor, epsilon: float) -> tor
     return epsilon * err[:, 0].mean() + (1.0 - epsilon) * err[:, 1].mean()
 
 
-def error_sums(pred_norm: np.ndarray, target_norm: np.ndarray, epsilon: float) -> np.ndarray:
-    """Sums over samples of [|Δg_norm|, |Δe_norm|, |Δg| dB, |Δ log2 e| EV] (prediction clamped, as deployed) + count."""
+def error_sums(pred_norm: np.ndarray, target_norm: np.ndarray, epsilon: float,
+               exposure_scale: str = "linear") -> np.ndarray:
+    """Sums over samples of [|Δg_norm|, |Δe_norm|, |Δg| dB, |Δ log2 e| EV] (prediction clamped, as deployed) + count;
+    the normalised exposures are in `exposure_scale`."""
     pred_norm = np.asarray(pred_norm, np.float64)
     target_norm = np.asarray(target_norm, np.float64)
     d = np.abs(pred_norm - target_norm)
     gain_err_db = np.abs(norm_to_gain(pred_norm[:, 0]) - norm_to_gain(target_norm[:, 0]))
-    ev_err = np.abs(np.log2(norm_to_exposure(pred_norm[:, 1]) / norm_to_exposure(target_norm[:, 1])))
+    ev_err = np.abs(np.log2(norm_to_exposure(pred_norm[:, 1], exposure_scale)
+                            / norm_to_exposure(target_norm[:, 1], exposure_scale)))
     return np.array([d[:, 0].sum(), d[:, 1].sum(), gain_err_db.sum(), ev_err.sum(), len(d)], np.float64)
 
 
@@ -157,7 +162,7 @@ def evaluate(model: nn.Module, data: SampleSet, epsilon: float, batch_size: int 
     rows = np.arange(len(data)) if rows is None else rows
     mine = rows[rank::world]
     pred = predict(model, data, batch_size, mine)
-    sums = error_sums(pred, data.targets[torch.as_tensor(mine, dtype=torch.long)].numpy(), epsilon)
+    sums = error_sums(pred, data.targets[torch.as_tensor(mine, dtype=torch.long)].numpy(), epsilon, data.exposure_scale)
     if world > 1:
         t = torch.from_numpy(sums)
         dist.all_reduce(t)
@@ -168,6 +173,12 @@ def evaluate(model: nn.Module, data: SampleSet, epsilon: float, batch_size: int 
 def constant_baseline(train: SampleSet) -> np.ndarray:
     """Per-output median of the training targets: the constant predictor minimising the L1 loss."""
     return np.median(train.targets.numpy(), axis=0).astype(np.float32)
+
+
+def hold_prediction(data: SampleSet, rows: np.ndarray) -> np.ndarray:
+    """The hold predictor: each sample's frame-t settings, normalised like the targets."""
+    idx = torch.as_tensor(rows, dtype=torch.long)
+    return np.stack([data.gain_norm[idx, 0].numpy(), data.exposure_norm[idx, 0].numpy()], axis=1)
 
 
 @dataclass
@@ -190,6 +201,10 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     """Train on `train`, early-stop on `validation` loss, return the best model and metrics (see module doc)."""
     if tuple(train.input_hw) != tuple(model_cfg.input_size):
         raise ConfigError("model.input_size", f"{model_cfg.input_size} but the data were prepared at {train.input_hw}")
+    for data in (train, validation):
+        if data.exposure_scale != model_cfg.exposure_scale:
+            raise ConfigError("model.exposure_scale",
+                              f"{model_cfg.exposure_scale!r} but the data were scaled {data.exposure_scale!r}")
     rank, world = _dist_info()
     torch.set_num_threads(cfg.num_threads)
     torch.manual_seed(seed)
@@ -267,10 +282,14 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     val = evaluate(model, validation, cfg.epsilon, cfg.eval_batch_size, val_rows)
     const = constant_baseline(train)
     base_pred = np.broadcast_to(const, (len(val_rows), 2))
-    base = metrics_from_sums(error_sums(base_pred, validation.targets.numpy()[val_rows], cfg.epsilon), cfg.epsilon)
+    val_targets = validation.targets.numpy()[val_rows]
+    base = metrics_from_sums(error_sums(base_pred, val_targets, cfg.epsilon, validation.exposure_scale), cfg.epsilon)
+    hold = metrics_from_sums(error_sums(hold_prediction(validation, val_rows), val_targets, cfg.epsilon,
+                                        validation.exposure_scale), cfg.epsilon)
     metrics = {
         **{f"val_{k}": v for k, v in val.items()},
         **{f"baseline_val_{k}": v for k, v in base.items()},
+        **{f"hold_val_{k}": v for k, v in hold.items()},
         "baseline_gain_norm": float(const[0]), "baseline_exposure_norm": float(const[1]),
         "improvement_gain_db": base["gain_mae_db"] - val["gain_mae_db"],
         "improvement_exposure_ev": base["exposure_mae_ev"] - val["exposure_mae_ev"],

@@ -1,4 +1,14 @@
-"""Gain and exposure ranges and the network's linear [0, 1] scaling (DESIGN: decisions that hold everywhere)."""
+"""Gain and exposure ranges and the network's [0, 1] scaling (DESIGN: decisions that hold everywhere).
+
+Two exposure scalings (`EXPOSURE_SCALES`):
+- "linear" — the paper's (e − 75) / (30000 − 75). Labels and samples always store this one (the data contract).
+- "log" — (log2 e − log2 75) / (log2 30000 − log2 75), i.e. EV above the shortest exposure over the 8.64-stop range.
+  A camera's exposure is a photographic, ratio quantity (gain in dB already is one). Under the linear scaling every
+  exposure below ~1 ms maps into [0, 0.03], so in daylight the exposure planes the network sees are all but constant
+  and an L1 loss on linear values is dominated by the few long tunnel exposures. Measured on the default-scale data
+  (README, issue 6): a network on the linear scaling barely beat the constant predictor. A model records which
+  scaling it was trained with (`model.exposure_scale`), and training and deployment convert through these functions.
+"""
 
 from __future__ import annotations
 
@@ -15,9 +25,24 @@ def gain_to_norm(gain_db):
     return (np.asarray(gain_db, dtype=np.float64) - GAIN_DB_MIN) / (GAIN_DB_MAX - GAIN_DB_MIN)
 
 
-def exposure_to_norm(exposure_us):
-    """Exposure in µs → [0, 1] (paper: (e − 75) / (30000 − 75))."""
-    return (np.asarray(exposure_us, dtype=np.float64) - EXPOSURE_US_MIN) / (EXPOSURE_US_MAX - EXPOSURE_US_MIN)
+EXPOSURE_SCALES = ("linear", "log")
+_LOG2_MIN, _LOG2_MAX = np.log2(EXPOSURE_US_MIN), np.log2(EXPOSURE_US_MAX)
+
+
+def _check_scale(scale: str) -> None:
+    if scale not in EXPOSURE_SCALES:
+        raise ValueError(f"exposure scale must be one of {EXPOSURE_SCALES}, got {scale!r}")
+
+
+def exposure_to_norm(exposure_us, scale: str = "linear"):
+    """Exposure in µs → [0, 1]: "linear" (paper: (e − 75) / (30000 − 75)) or "log" (EV over the range, module doc).
+
+    The log scaling needs e > 0; values below 75 µs map below 0 and above 30000 µs above 1, as with linear."""
+    _check_scale(scale)
+    e = np.asarray(exposure_us, dtype=np.float64)
+    if scale == "log":
+        return (np.log2(e) - _LOG2_MIN) / (_LOG2_MAX - _LOG2_MIN)
+    return (e - EXPOSURE_US_MIN) / (EXPOSURE_US_MAX - EXPOSURE_US_MIN)
 
 
 def norm_to_gain(gain_norm):
@@ -26,10 +51,21 @@ def norm_to_gain(gain_norm):
     return GAIN_DB_MIN + g * (GAIN_DB_MAX - GAIN_DB_MIN)
 
 
-def norm_to_exposure(exposure_norm):
-    """[0, 1] → exposure in µs; inputs are clamped to [0, 1] first."""
+def norm_to_exposure(exposure_norm, scale: str = "linear"):
+    """[0, 1] → exposure in µs (inverse of `exposure_to_norm` with the same scale); inputs are clamped to [0, 1] first."""
+    _check_scale(scale)
     e = np.clip(np.asarray(exposure_norm, dtype=np.float64), 0.0, 1.0)
+    if scale == "log":
+        return np.exp2(_LOG2_MIN + e * (_LOG2_MAX - _LOG2_MIN))
     return EXPOSURE_US_MIN + e * (EXPOSURE_US_MAX - EXPOSURE_US_MIN)
+
+
+def rescale_exposure_norm(exposure_norm, from_scale: str, to_scale: str):
+    """A normalised exposure in one scaling → the other (identity when equal; no clamping beyond [0, 1])."""
+    if from_scale == to_scale:
+        _check_scale(from_scale)
+        return np.asarray(exposure_norm, dtype=np.float64)
+    return exposure_to_norm(norm_to_exposure(exposure_norm, from_scale), to_scale)
 
 
 def clamp_settings(gain_db: float, exposure_us: float) -> tuple[float, float]:

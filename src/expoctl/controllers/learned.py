@@ -4,7 +4,7 @@ Per frame: the full-size 8-bit RGB camera frame goes through `expoctl.preprocess
 (INTER_AREA to the image-store size recorded in the checkpoint), then to the network input size — exactly the
 chain the training frames went through. The controller keeps the last three prepared frames and their settings;
 until three frames exist it repeats the oldest one (the start of a sequence). The network's two outputs are
-clamped to [0, 1] and unscaled (`expoctl.camera.ranges`); the caller applies them at frame t+1.
+clamped to [0, 1] and unscaled (`expoctl.camera.ranges`, with the exposure scaling the model was trained with); the caller applies them at frame t+1.
 
 Driving a real camera (any SDK that can read a frame with its gain/exposure and set the next ones):
 
@@ -40,8 +40,10 @@ class LearnedController(Controller):
     name = "learned"
 
     def __init__(self, model: torch.nn.Module, store_hw, input_hw, num_threads: int | None = 1,
-                 onnx_session=None):
+                 onnx_session=None, exposure_scale: str | None = None):
         self.model = model.eval()
+        # the scaling the network was trained with (model.exposure_scale, recorded in its config)
+        self.exposure_scale = exposure_scale or getattr(getattr(model, "cfg", None), "exposure_scale", "linear")
         self.store_hw = tuple(int(v) for v in store_hw)
         self.input_hw = tuple(int(v) for v in input_hw)
         self.num_threads = num_threads
@@ -69,7 +71,8 @@ class LearnedController(Controller):
             session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
         elif backend != "torch":
             raise ConfigError("controllers.learned.backend", f"must be torch or onnx, got {backend!r}")
-        return cls(model, ckpt["store_hw"], ckpt["input_hw"], num_threads=num_threads, onnx_session=session)
+        return cls(model, ckpt["store_hw"], ckpt["input_hw"], num_threads=num_threads, onnx_session=session,
+                   exposure_scale=model.cfg.exposure_scale)
 
     def reset(self, initial: Settings) -> None:
         self._frames.clear()
@@ -83,7 +86,8 @@ class LearnedController(Controller):
         while len(self._frames) < N_FRAMES:  # sequence start: repeat the oldest frame we have
             self._frames.append(self._frames[-1])
             self._settings.append(self._settings[-1])
-        g, e = settings_to_norm([s.gain_db for s in self._settings], [s.exposure_us for s in self._settings])
+        g, e = settings_to_norm([s.gain_db for s in self._settings], [s.exposure_us for s in self._settings],
+                                self.exposure_scale)
         return assemble_input(stack_frames(list(self._frames)), torch.from_numpy(g)[None], torch.from_numpy(e)[None])
 
     def predict_norm(self, x: torch.Tensor) -> np.ndarray:
@@ -97,7 +101,7 @@ class LearnedController(Controller):
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
         out = self.predict_norm(self.network_input(image, applied))
         # clamp to [0, 1] then unscale (norm_to_* clamp first)
-        return Settings(float(norm_to_gain(out[0])), float(norm_to_exposure(out[1])))
+        return Settings(float(norm_to_gain(out[0])), float(norm_to_exposure(out[1], self.exposure_scale)))
 
 
 def make_learned(params: dict) -> Controller:
