@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 import torch
 
-from expoctl.camera.ranges import gain_to_norm
+from expoctl.camera.ranges import gain_to_norm, norm_to_exposure
 from expoctl.dataset import load_sample_sets, load_sample_sets_from_files
 from expoctl.errors import InputError
 from expoctl.synthetic_data import make_synthetic_dataset
@@ -35,6 +35,22 @@ def test_batches_match_store_and_frames(syn):
     assert torch.equal(y[0], torch.tensor([row.target_gain_norm, row.target_exposure_norm], dtype=torch.float32))
     # each distinct frame is cached once: 8 camera combinations share them
     assert tr.frames.shape[0] <= 2 * 6 * 3
+
+
+def test_log_exposure_scale_converts_planes_and_targets(syn):
+    """samples.parquet holds linear-scaled targets; a log-scaled set carries both planes and targets in log (EV)."""
+    lin = load_sample_sets_from_files(syn["samples"], syn["frames"], syn["images_dir"], 16)["train"]
+    log = load_sample_sets_from_files(syn["samples"], syn["frames"], syn["images_dir"], 16,
+                                      exposure_scale="log")["train"]
+    assert (lin.exposure_scale, log.exposure_scale) == ("linear", "log")
+    e_lin = norm_to_exposure(lin.targets[:, 1].numpy().astype(np.float64), "linear")
+    e_log = norm_to_exposure(log.targets[:, 1].numpy().astype(np.float64), "log")
+    np.testing.assert_allclose(e_log, e_lin, rtol=1e-4)  # float32 targets: same exposures, other scaling
+    np.testing.assert_allclose(norm_to_exposure(log.exposure_norm.numpy().astype(np.float64), "log"),
+                               norm_to_exposure(lin.exposure_norm.numpy().astype(np.float64), "linear"), rtol=1e-4)
+    assert torch.equal(log.targets[:, 0], lin.targets[:, 0]) and torch.equal(log.gain_norm, lin.gain_norm)
+    x, _ = log.batch([0])
+    assert float(x[0, 4, 0, 0]) == float(log.exposure_norm[0, 0])
 
 
 def test_shared_flip_mirrors_all_three_frames(syn):

@@ -47,6 +47,9 @@ def test_config_validation_names_keys():
     with pytest.raises(ConfigError, match="model.widths"):
         ModelConfig.from_dict({"widths": [1]})
     assert ModelConfig.from_dict({"input_size": [96, 128]}).input_size == (96, 128)
+    with pytest.raises(ConfigError, match="model.exposure_scale"):
+        ModelConfig.from_dict({"exposure_scale": "ln"})
+    assert ModelConfig.from_dict({"exposure_scale": "log"}).exposure_scale == "log"
 
 
 def test_scale_widths():

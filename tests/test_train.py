@@ -12,7 +12,7 @@ from expoctl.errors import ConfigError, InputError
 from expoctl.model import ModelConfig
 from expoctl.synthetic_data import make_synthetic_dataset
 from expoctl.train import (TrainConfig, checkpoint_dict, error_sums, export_onnx, fit, load_checkpoint,
-                           metrics_from_sums, predict, weighted_l1)
+                           hold_prediction, metrics_from_sums, predict, weighted_l1)
 
 TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
                    fc_widths=(16, 8, 8), dropout=0.1)
@@ -72,6 +72,31 @@ def test_input_size_mismatch_is_a_config_error(sets):
     cfg = ModelConfig(input_size=(40, 40), conv_kernels=(3, 3, 3), pool=2)
     with pytest.raises(ConfigError, match="model.input_size"):
         fit(cfg, TrainConfig(epochs=1), sets["train"], sets["validation"], seed=0)
+
+
+def test_exposure_scale_mismatch_is_a_config_error(sets):
+    with pytest.raises(ConfigError, match="model.exposure_scale"):
+        fit(ModelConfig(**{**TINY.__dict__, "exposure_scale": "log"}), TrainConfig(epochs=1), sets["train"],
+            sets["validation"], seed=0)
+
+
+def test_errors_in_ev_under_log_scaling():
+    # log scaling: 1/8.64 of the range is one stop, wherever it is
+    step = 1 / np.log2(30000 / 75)
+    m = metrics_from_sums(error_sums(np.array([[0.1, 0.2 + step]]), np.array([[0.1, 0.2]]), 0.5, "log"), 0.5)
+    assert m["exposure_mae_ev"] == pytest.approx(1.0) and m["gain_mae_db"] == 0.0
+
+
+def test_hold_baseline_is_frame_t_settings(sets):
+    val = sets["validation"]
+    rows = np.arange(len(val))
+    hold = hold_prediction(val, rows)
+    np.testing.assert_array_equal(hold[:, 0], val.gain_norm[:, 0].numpy())
+    np.testing.assert_array_equal(hold[:, 1], val.exposure_norm[:, 0].numpy())
+    r = fit(TINY, TrainConfig(epochs=1, batch_size=32, num_threads=1), sets["train"], val, seed=0)
+    expect = metrics_from_sums(error_sums(hold, val.targets.numpy(), 0.5), 0.5)
+    assert r.metrics["hold_val_exposure_mae_ev"] == pytest.approx(expect["exposure_mae_ev"])
+    assert r.metrics["hold_val_gain_mae_db"] == pytest.approx(expect["gain_mae_db"])
 
 
 def test_checkpoint_roundtrip_and_onnx_matches_torch(sets, tmp_path):

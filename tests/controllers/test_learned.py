@@ -47,6 +47,18 @@ def test_clamps_and_unscales(out, expected):
     assert (s.gain_db, s.exposure_us) == pytest.approx(expected)
 
 
+def test_log_scaled_model_unscales_and_feeds_planes_in_ev():
+    net = Fixed((0.0, 0.5))
+    net.cfg = ModelConfig(**{**CFG.__dict__, "exposure_scale": "log"})  # as ExposureNet carries it
+    ctrl = LearnedController(net, store_hw=(24, 32), input_hw=(24, 24))
+    assert ctrl.exposure_scale == "log"
+    ctrl.reset(Settings(0.0, 150.0))
+    s = ctrl.update(_frame(10), Settings(0.0, 150.0))
+    assert s.exposure_us == pytest.approx((EXPOSURE_US_MIN * EXPOSURE_US_MAX) ** 0.5)  # mid-range in EV
+    # 150 µs is one stop above the minimum: plane value 1 / 8.64
+    assert float(net.inputs[0][0, 4, 0, 0]) == pytest.approx(1 / np.log2(EXPOSURE_US_MAX / EXPOSURE_US_MIN), rel=1e-6)
+
+
 def test_keeps_three_frame_history_and_repeats_at_start():
     net = Fixed((0.1, 0.1))
     ctrl = LearnedController(net, store_hw=(24, 32), input_hw=(24, 24))
