@@ -52,6 +52,22 @@ def test_config_validation_names_keys():
     assert ModelConfig.from_dict({"exposure_scale": "log"}).exposure_scale == "log"
 
 
+def test_residual_output_starts_as_the_hold_predictor():
+    """output=residual: an untrained net returns frame t's own normalised settings (channels 3, 4), whatever else
+    the frames show; training then moves it away only through the head."""
+    cfg = ModelConfig(input_size=(24, 24), conv_kernels=(3, 3, 3), pool=2, conv_widths=(4, 4, 4, 4),
+                      fc_widths=(4, 4, 4), output="residual")
+    net = ExposureNet(cfg).eval()
+    x = torch.rand(5, 15, 24, 24)
+    x[:, 3] = torch.tensor([0.1, 0.2, 0.3, 0.4, 0.5])[:, None, None]
+    x[:, 4] = torch.tensor([0.9, 0.8, 0.7, 0.6, 0.5])[:, None, None]
+    with torch.no_grad():
+        y = net(x)
+    assert torch.equal(y, x[:, 3:5, 0, 0])
+    with pytest.raises(ConfigError, match="model.output"):
+        ModelConfig.from_dict({"output": "delta"})
+
+
 def test_scale_widths():
     cfg = scale_widths(ModelConfig(), 0.5)
     assert cfg.conv_widths == (15, 30, 60, 120) and cfg.fc_widths == (64, 32, 16)

@@ -74,6 +74,20 @@ def test_input_size_mismatch_is_a_config_error(sets):
         fit(cfg, TrainConfig(epochs=1), sets["train"], sets["validation"], seed=0)
 
 
+def test_residual_log_model_learns_and_exports(sets, tmp_path):
+    cfg_m = ModelConfig(**{**TINY.__dict__, "output": "residual"})
+    r = fit(cfg_m, TrainConfig(lr=3e-3, batch_size=32, epochs=4, patience=4, num_threads=1), sets["train"],
+            sets["validation"], seed=1)
+    assert r.history[0]["val_loss"] > 0 and r.metrics["val_loss"] <= r.history[0]["val_loss"]
+    path = tmp_path / "res.onnx"
+    export_onnx(r.model, path)
+    x, _ = sets["validation"].batch(np.arange(6))
+    with torch.no_grad():
+        ref = r.model(x).numpy()
+    got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"input": x.numpy()})[0]
+    np.testing.assert_allclose(got, ref, atol=1e-4)
+
+
 def test_exposure_scale_mismatch_is_a_config_error(sets):
     with pytest.raises(ConfigError, match="model.exposure_scale"):
         fit(ModelConfig(**{**TINY.__dict__, "exposure_scale": "log"}), TrainConfig(epochs=1), sets["train"],

@@ -6,6 +6,11 @@ Layout (defaults = the authors' sizes at 224×224):
   3 FC blocks:   FC → BN → ReLU → dropout, widths 128, 64, 32
   output:        FC 32 → 2 (normalised gain, normalised exposure), no activation.
 
+`output: residual` (a deviation from the paper, which found absolute regression better than regressing a change):
+the two outputs are added to frame t's normalised settings, read from its constant planes. Targets and loss stay
+absolute; only the parameterisation changes, so an untrained network is the hold predictor. On our CPU budget (about
+1/1000 of the paper's sample-epochs) the absolute network did not get past a constant predictor (README, Results).
+
 The authors flatten a 1×1 map after a fixed 7×7 fourth conv, which only works near 224×224. Here the fourth kernel
 K4 is computed from the input size as the whole remaining map (7×7 at 224, 3×3 at 128, …), so the fourth conv always
 sees the full field and yields 1×1 at any size: the same architecture as the authors' at 224, sound at every other
@@ -24,6 +29,11 @@ from expoctl.errors import ConfigError
 from expoctl.preprocess import N_INPUT_CHANNELS, as_hw
 
 
+OUTPUTS = ("absolute", "residual")
+# channels of frame t's gain and exposure planes (expoctl.preprocess channel order: [R, G, B, gain, exposure] × t, …)
+_T_SETTING_CHANNELS = slice(3, 5)
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     input_size: tuple[int, int] = (224, 224)  # (height, width) of the network input
@@ -35,6 +45,10 @@ class ModelConfig:
     # how the exposure planes and the exposure output are scaled to [0, 1] (expoctl.camera.ranges): "linear" is the
     # paper's; "log" (EV) is what the configs use — part of the network's interface, so it lives with the architecture
     exposure_scale: str = "linear"
+    # "absolute": the head's two values are the normalised settings (paper). "residual": they are added to frame t's
+    # own normalised settings (its gain/exposure planes), so an untrained net holds the current settings and training
+    # learns the correction — the loss still compares absolute settings with absolute targets (module doc).
+    output: str = "absolute"
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "model") -> "ModelConfig":
@@ -53,8 +67,9 @@ class ModelConfig:
                 d["pool"] = int(d["pool"])
             if "dropout" in d:
                 d["dropout"] = float(d["dropout"])
-            if "exposure_scale" in d:
-                d["exposure_scale"] = str(d["exposure_scale"])
+            for k in ("exposure_scale", "output"):
+                if k in d:
+                    d[k] = str(d[k])
         except (TypeError, ValueError) as exc:
             raise ConfigError(prefix, f"bad value: {exc}") from None
         cfg = cls(**d)
@@ -73,6 +88,8 @@ class ModelConfig:
             raise ConfigError(f"{prefix}.conv_kernels", "kernels and pool must be ≥ 1")
         if self.exposure_scale not in EXPOSURE_SCALES:
             raise ConfigError(f"{prefix}.exposure_scale", f"must be one of {list(EXPOSURE_SCALES)}, got {self.exposure_scale!r}")
+        if self.output not in OUTPUTS:
+            raise ConfigError(f"{prefix}.output", f"must be one of {list(OUTPUTS)}, got {self.output!r}")
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"{prefix}.dropout", f"must be in [0, 1), got {self.dropout}")
         for axis, n in zip(("height", "width"), self.input_size):
@@ -122,11 +139,19 @@ class ExposureNet(nn.Module):
         for c_out in cfg.fc_widths:
             head += [nn.Linear(c_in, c_out), nn.BatchNorm1d(c_out), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout)]
             c_in = c_out
-        head.append(nn.Linear(c_in, 2))
+        out = nn.Linear(c_in, 2)
+        if cfg.output == "residual":
+            # zero-initialised so the untrained network is exactly the hold predictor; gradients still reach it
+            nn.init.zeros_(out.weight)
+            nn.init.zeros_(out.bias)
+        head.append(out)
         self.head = nn.Sequential(*head)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.head(self.features(x))
+        y = self.head(self.features(x))
+        if self.cfg.output == "residual":
+            y = y + x[:, _T_SETTING_CHANNELS, 0, 0]  # planes are constant: any pixel is the frame-t setting
+        return y
 
 
 def count_parameters(model: nn.Module) -> int:
