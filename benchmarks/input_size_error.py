@@ -40,6 +40,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--exposure-scale", choices=["linear", "log"], default="log")
+    ap.add_argument("--output", choices=["absolute", "residual"], default="residual")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "input_size_error.json"))
     args = ap.parse_args()
 
@@ -57,7 +58,8 @@ def main() -> None:
         sets = load_sample_sets_from_files(args.samples, args.frames, args.images_dir, size,
                                            exposure_scale=args.exposure_scale)
         t0 = time.perf_counter()
-        r = fit(ModelConfig(input_size=(size, size), exposure_scale=args.exposure_scale), cfg, sets["train"], sets["validation"], args.seed,
+        model_cfg = ModelConfig(input_size=(size, size), exposure_scale=args.exposure_scale, output=args.output)
+        r = fit(model_cfg, cfg, sets["train"], sets["validation"], args.seed,
                 log=lambda s, size=size: print(f"[{size}] {s}", flush=True))
         m = r.metrics
         rows.append({"input_size": size, "train_seconds": time.perf_counter() - t0,
