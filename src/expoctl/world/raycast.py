@@ -7,6 +7,11 @@ Shading is Lambertian: L = albedo · E / π per RGB channel (cd/m²; E in lux), 
   an interreflection ambient, and direct sun where the shadow ray leaves through a portal.
 Emitters: lamp panels (box-filtered coverage, so sub-pixel lamps do not flicker), sky (CIE overcast or HDRI), sun disk.
 Textures are sampled trilinearly from mip pyramids at the level of the projected pixel footprint.
+
+Speed (all bit-identical to the straightforward code): the small per-ray helpers are inlined into their callers
+(`inline="always"`, numba IR level) because each call passed every array as ~9 scalars and returned a tuple through
+memory; blocks and props the ray cannot reach are rejected before their exact test (trace, `cull`). `trace` itself is
+not inlined: it is called twice per pixel, and inlining it quadrupled the compile time for ~5 % of render time.
 """
 
 from __future__ import annotations
@@ -19,6 +24,9 @@ from expoctl.world import route as rt
 
 SKY, GROUND, SIDE, ROOF, TWALL, TCEIL, FACE, HILLTOP, FAR, PROP = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 INF = 1.0e30
+# Slack (m) of the cheap reach test before a block's or prop's exact intersection test: the end points of the ray
+# piece are rounded at ~1e-13 m (coordinates ≲ 1e3 m), so 1 µm never rejects a block or box the exact test would hit.
+CULL_MARGIN_M = 1.0e-6
 
 # lighting parameter vector (float64) indices
 LP_SUN = 0  # 3: unit vector toward the sun (world)
@@ -42,7 +50,7 @@ def _dot(seg, i, c, x, y, z):
     return x * seg[i, c] + y * seg[i, c + 1] + z * seg[i, c + 2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _inside_profile(seg, j, v, w):
     hw = seg[j, rt.HW]
     if w <= 0.0 or v <= -hw or v >= hw:
@@ -55,7 +63,7 @@ def _inside_profile(seg, j, v, w):
     return v * v + dc * dc < seg[j, rt.ARC_R] ** 2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _block_entry(o_v, o_w, d_v, d_w, off, h, sign):
     """Entry time of the ray into the solid {sign·v > off, w < h} and whether it enters through the side (True) or the roof."""
     # interval where sign*v > off
@@ -104,7 +112,7 @@ def _slab(o, d, lo, hi, tmin, tmax):
     return tmin, tmax, entered, sign
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best):
     """Entry time into box `col` of segment i (local coords) and its outward normal, or INF."""
     tmin, tmax = t0, best
@@ -128,8 +136,9 @@ def _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best):
 
 
 @njit(cache=True)
-def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop):
-    """First hit along o + t·d. Returns (t, code, frame_seg, air_seg, air_inside, u, v, w, nu, nv, nw, mat)."""
+def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull):
+    """First hit along o + t·d. Returns (t, code, frame_seg, air_seg, air_inside, u, v, w, nu, nv, nw, mat).
+    cull: reject roadside blocks and props the ray cannot reach before their exact test (same result, faster)."""
     nseg = seg.shape[0]
     i = i0
     inside = inside0
@@ -205,12 +214,25 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop):
                 t = -ow / dw
                 if t0 <= t < best:
                     best, code, nu, nv, nw, mat = t, GROUND, 0.0, 0.0, 1.0, MAT_VERGE
+            # The part of the ray still in play is the straight piece [t0, best]: the local coordinates of its two
+            # end points bound it, so a block or box it cannot reach is rejected with a few multiplications
+            # instead of the divisions of the exact test (most rays pass most blocks and props; rays rising over
+            # the roadside to the sky are rejected by their height). The exact test runs for everything not
+            # rejected, so hits and their t are unchanged (CULL_MARGIN_M: far above the rounding of either test).
+            # With cull=False every block and box takes the exact test (reference path for the tests).
+            ua, ub = ou + t0 * du, ou + best * du
+            va, vb = ov + t0 * dv, ov + best * dv
+            wa, wb = ow + t0 * dw, ow + best * dw
+            v_min, v_max = min(va, vb) - CULL_MARGIN_M, max(va, vb) + CULL_MARGIN_M
+            w_min, w_max = min(wa, wb) - CULL_MARGIN_M, max(wa, wb) + CULL_MARGIN_M
             for sgn in (-1.0, 1.0):
                 if sgn < 0:
                     off, h, m = seg[i, rt.L_OFF], seg[i, rt.L_H], seg[i, rt.L_MAT]
+                    reach = -v_min > off  # the piece gets to the left of −off somewhere
                 else:
                     off, h, m = seg[i, rt.R_OFF], seg[i, rt.R_H], seg[i, rt.R_MAT]
-                if off < rt.NO_BLOCK_OFFSET:
+                    reach = v_max > off
+                if off < rt.NO_BLOCK_OFFSET and ((reach and w_min < h) or not cull):
                     t, side = _block_entry(ov, ow, dv, dw, off, h, sgn)
                     if t0 <= t < best:
                         best, mat = t, int(m)
@@ -219,8 +241,12 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop):
                         else:
                             code, nu, nv, nw = ROOF, 0.0, 0.0, 1.0
                             mat = MAT_ROOF
+            u_min, u_max = min(ua, ub) - CULL_MARGIN_M, max(ua, ub) + CULL_MARGIN_M
             for b in range(int(seg[i, rt.N_BOXES])):
                 col = rt.BOX0 + rt.BOX_STRIDE * b
+                if cull and (u_max < seg[i, col] or u_min > seg[i, col + 1] or v_max < seg[i, col + 2]
+                             or v_min > seg[i, col + 3] or w_max < seg[i, col + 4] or w_min > seg[i, col + 5]):
+                    continue  # the piece's bounding box misses the prop's box
                 t, bu, bv, bw = _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best)
                 if t < best:
                     best, code, nu, nv, nw, mat = t, PROP, bu, bv, bw, int(seg[i, col + 6])
@@ -259,6 +285,28 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop):
     return INF, SKY, i, i, inside, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
 
 
+@njit(cache=True)
+def spread_stride(n):
+    """A stride s coprime with n near n/φ, so row(k) = (k·s) mod n is a permutation of 0…n−1 in which every run of
+    consecutive k is spread nearly evenly over 0…n−1 (three-distance theorem).
+
+    Why: numba's prange hands each thread one contiguous block of iterations, and image rows differ in cost (rising
+    sky rays walk many segments; ground rows sample textures and cast shadow rays), with the dearer half of the
+    image changing from frame to frame (measured on the benchmark frames at 320×240: up to 35 %, on average 10 %
+    more work in one half than the other), so one of two threads idled at the end of a frame. Iterating k and
+    rendering row(k) gives every thread the same mix. Rows are independent, so the image is bit-identical."""
+    if n <= 2:
+        return 1
+    s = max(1, int(n * 0.6180339887498949 + 0.5))
+    while True:
+        a, b = s, n
+        while b:
+            a, b = b, a % b
+        if a == 1:
+            return s
+        s += 1
+
+
 @njit(cache=True, inline="always")
 def _hash01(a, b):
     h = (a * 374761393 + b * 668265263) & 0xFFFFFFFF
@@ -267,28 +315,37 @@ def _hash01(a, b):
     return h / 4294967296.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bilinear(texels, base, n, x, y, out, weight):
-    """Add weight × bilinear sample (wrap-around) of the (n, n, 3) level at texel coords (x, y)."""
+    """Add weight × bilinear sample (wrap-around) of the (n, n, 3) level at texel coords (x, y).
+
+    Level sizes are powers of two (tile_px is validated to 256…2048 and every mip level halves it), so the wrap is a
+    bit mask: for a power of two n, `i & (n − 1)` equals Python's `i % n` for negative i too, without the four
+    integer divisions per level (measured on 0.7 M recorded samples: 174 → 92 ns per trilinear sample)."""
     x -= 0.5
     y -= 0.5
     fx0 = math.floor(x)
     fy0 = math.floor(y)
     ax = x - fx0
     ay = y - fy0
-    x0 = int(fx0) % n
-    y0 = int(fy0) % n
-    x1 = (x0 + 1) % n
-    y1 = (y0 + 1) % n
+    mask = n - 1
+    x0 = int(fx0) & mask
+    y0 = int(fy0) & mask
+    x1 = (x0 + 1) & mask
+    y1 = (y0 + 1) & mask
+    row0 = base + y0 * n * 3
+    row1 = base + y1 * n * 3
+    bx = 1 - ax
+    by = 1 - ay
     for c in range(3):
-        v00 = texels[base + (y0 * n + x0) * 3 + c]
-        v01 = texels[base + (y0 * n + x1) * 3 + c]
-        v10 = texels[base + (y1 * n + x0) * 3 + c]
-        v11 = texels[base + (y1 * n + x1) * 3 + c]
-        out[c] += weight * ((v00 * (1 - ax) + v01 * ax) * (1 - ay) + (v10 * (1 - ax) + v11 * ax) * ay)
+        v00 = texels[row0 + x0 * 3 + c]
+        v01 = texels[row0 + x1 * 3 + c]
+        v10 = texels[row1 + x0 * 3 + c]
+        v11 = texels[row1 + x1 * 3 + c]
+        out[c] += weight * ((v00 * bx + v01 * ax) * by + (v10 * bx + v11 * ax) * ay)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sample(texels, offs, sizes, scales, mat, a_m, b_m, footprint_m, texel_m, out):
     """Trilinear mip sample of material `mat` at surface coords (a along the route, b across/up) in metres."""
     n0 = sizes[mat, 0]

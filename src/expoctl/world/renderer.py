@@ -101,11 +101,16 @@ class Renderer:
         self.share_render = bool(share_render)
         self.seg = np.ascontiguousarray(city.segments)
         self.texels, self.offs, self.sizes, self.scales = city.texture_atlas()
+        if np.any(self.sizes & (self.sizes - 1)):  # raycast._bilinear wraps texel indices with a bit mask
+            raise ValueError("texture mip level sizes must be powers of two (textures.tile_px)")
         cfg = city.cfg
         self.albedo = np.array([float(cfg["albedo"][m]) for m in MATERIALS])
         self._base_lp = self._static_lighting(cfg, mip_bias, tmax_m)
         self._lamp_count, self._e_nom = self._lamp_layout(cfg)
         self._cache: dict = {}
+        # reach test before each roadside block/prop intersection (same image; False = exact test for every one,
+        # the reference path tests/world/test_renderer_speedups.py compares against)
+        self.cull = True
         self.set_conditions(conditions if conditions is not None else city.conditions(0, 0))
 
     @classmethod
@@ -228,7 +233,7 @@ class Renderer:
         render_kernel(self.seg, self.lp, self.texels, self.offs, self.sizes, self.scales, self.albedo,
                       self.lamp_mult, self._lamp_count, self.hdri, np.ascontiguousarray(pose[:3, 3]),
                       np.ascontiguousarray(pose[:3, :3]), K[0, 0], K[1, 1], K[0, 2], K[1, 2], i0, inside,
-                      lum, depth, code, mat)
+                      lum, depth, code, mat, self.cull)
         if glare:
             lum = self.apply_glare(lum)
         return {"luminance": lum, "depth": depth, "code": code, "material": mat}
@@ -346,7 +351,9 @@ def _blur_kernel(img, depth, fx, fy, cx, cy, pose_ref, pose_a, pose_b, out):
     Returns the largest flow magnitude (px)."""
     h, w = depth.shape
     row_max = np.zeros(h)
-    for y in prange(h):
+    stride = rc.spread_stride(h)
+    for ky in prange(h):
+        y = (ky * stride) % h  # blur lengths grow toward the bottom rows: spread each thread's rows (spread_stride)
         m = 0.0
         for x in range(w):
             z = depth[y, x]
