@@ -1,7 +1,12 @@
 """Simulator speed: render (+ motion blur) (+ sensor, when expoctl.camera.sensor exists) frames/s per camera, and memory.
 
 Usage: .venv/bin/python benchmarks/simulator_speed.py [--frames 12] [--width 640] [--height 480] [--threads 0]
+                                                    [--baseline OLD_SRC]
 Prints a table of medians over frames and writes benchmarks/results/simulator_speed.json.
+--baseline OLD_SRC: also time another version of the code (a `src` directory, e.g. from
+`git archive <commit> src | tar -x -C /tmp/old` → /tmp/old/src) on the same frames, alternating with the current code
+frame by frame, and report both medians, their ratio and whether the images are identical: on a shared machine only
+ratios measured in one run compare.
 Frames are spread over the training city's whole route (open road, portals, tunnel interior), so the numbers mix
 scene types the way a traversal does. Each stage is timed per camera-frame (wall clock; the CPU-time rows show the
 cost independent of other users of the machine); `total` = blurred render + sensor.
@@ -10,7 +15,6 @@ cost independent of other users of the machine); `total` = blurred render + sens
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import resource
@@ -24,6 +28,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
+
+import importlib  # noqa: E402
+import re  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
 
 from expoctl.io import write_json  # noqa: E402
 from expoctl.world import Renderer, load_city  # noqa: E402
@@ -44,6 +53,30 @@ def _sensor(width, height):
         return None, f"Sensor() failed: {exc}"
 
 
+def _load_baseline(src: str):
+    """The `expoctl.world` of another source tree, imported as package `expoctl_baseline` (a renamed copy in a temp
+    dir), so both versions run in this process on the same frames."""
+    tmp = Path(tempfile.mkdtemp(prefix="expoctl_baseline_"))
+    pkg = tmp / "expoctl_baseline"
+    shutil.copytree(Path(src) / "expoctl", pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    for f in pkg.rglob("*.py"):
+        text = re.sub(r"\bexpoctl\.", "expoctl_baseline.", f.read_text())
+        f.write_text(text.replace("from expoctl import", "from expoctl_baseline import"))
+    sys.path.insert(0, str(tmp))
+    return importlib.import_module("expoctl_baseline.world")
+
+
+def _time_render(renderer, traj, k):
+    """(sharp render s, sharp CPU s, 5 ms blurred render s, luminance of the sharp render)."""
+    t, c = time.perf_counter(), time.process_time()
+    lum = renderer.render(traj.poses[k])[0]
+    sharp, sharp_cpu = time.perf_counter() - t, time.process_time() - c
+    renderer._cache.clear()
+    t = time.perf_counter()
+    renderer.render_exposure(traj, int(k), 5000.0)
+    return sharp, sharp_cpu, time.perf_counter() - t, lum
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=12)
@@ -51,6 +84,7 @@ def main() -> int:
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--threads", type=int, default=0, help="numba threads (0 = numba default)")
     ap.add_argument("--city", default="train")
+    ap.add_argument("--baseline", default=None, help="another version's src dir to time alongside (see docstring)")
     args = ap.parse_args()
     if args.threads:
         numba.set_num_threads(args.threads)
@@ -97,6 +131,27 @@ def main() -> int:
     _, peak_py = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     maxrss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    # the baseline runs after the memory figures, which are the current code's alone
+    baseline = None
+    if args.baseline:
+        old = _load_baseline(args.baseline)
+        old_city = old.load_city(args.city)
+        old_traj = old_city.traversal(0, None, fps=15.0, seed=0)
+        old_r = old.Renderer(old_city, args.width, args.height, 70.0, conditions=old_traj.conditions)
+        old_r.render_exposure(old_traj, 0, 5000.0)  # compile outside the timings
+        times = {"old": [], "new": []}
+        identical = True
+        for i, k in enumerate(frames):  # alternate which goes first: neither always meets the other's cache state
+            order = (("old", old_r, old_traj), ("new", renderer, traj))
+            res = {name: _time_render(r, tr, k) for name, r, tr in (order if i % 2 == 0 else order[::-1])}
+            identical &= bool(np.array_equal(res["old"][3], res["new"][3]))
+            for name in times:
+                times[name].append(res[name][:3])
+        med = {name: 1e3 * np.median(np.array(v), axis=0) for name, v in times.items()}
+        baseline = {"src": str(args.baseline), "sharp_images_identical": identical}
+        for j, key in enumerate(("render_sharp", "render_sharp_cpu", "render_blur_5ms")):
+            baseline[key] = {"old_ms": round(float(med["old"][j]), 2), "new_ms": round(float(med["new"][j]), 2),
+                             "speedup": round(float(med["old"][j] / med["new"][j]), 2)}
 
     result = {
         "city": args.city, "width": args.width, "height": args.height, "frames": int(len(frames)),
@@ -108,6 +163,8 @@ def main() -> int:
         "median_cpu_ms": {k: round(1e3 * float(np.median(v)), 2) for k, v in cpu.items() if v},
         "peak_python_alloc_mb": round(peak_py / 2**20, 1), "max_rss_mb": round(maxrss_mb, 1),
     }
+    if baseline is not None:
+        result["baseline"] = baseline
     print(f"simulator speed, {args.width}x{args.height}, city {args.city}, {len(frames)} frames, "
           f"{result['numba_threads']} numba threads, load avg {result['load_average_1min']:.1f}")
     print(f"{'stage (per camera-frame)':28s} {'median ms':>10s} {'frames/s':>9s}")
@@ -118,6 +175,12 @@ def main() -> int:
         print(f"{'cpu time ' + k:28s} {v:10.1f}   (process CPU time, all threads: cost without contention)")
     if sensor_note:
         print(f"sensor: {sensor_note}")
+    if baseline is not None:
+        print(f"baseline {baseline['src']} on the same frames, alternating (sharp images identical: "
+              f"{baseline['sharp_images_identical']}):")
+        for key in ("render_sharp", "render_sharp_cpu", "render_blur_5ms"):
+            b = baseline[key]
+            print(f"  {key:26s} old {b['old_ms']:8.1f} ms  new {b['new_ms']:8.1f} ms  speed-up {b['speedup']:.2f}x")
     print(f"peak python allocations {result['peak_python_alloc_mb']} MB, max RSS {result['max_rss_mb']} MB")
     out = ROOT / "benchmarks" / "results" / "simulator_speed.json"
     write_json(result, out)
