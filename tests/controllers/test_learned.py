@@ -9,7 +9,7 @@ from torch import nn
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Settings
-from expoctl.controllers.learned import LearnedController, make_learned, register_learned
+from expoctl.controllers.learned import LearnedController, exposure_first, make_learned, register_learned
 from expoctl.controllers.registry import CONTROLLERS, make_controller
 from expoctl.errors import ConfigError
 from expoctl.model import ExposureNet, ModelConfig
@@ -57,6 +57,28 @@ def test_log_scaled_model_unscales_and_feeds_planes_in_ev():
     assert s.exposure_us == pytest.approx((EXPOSURE_US_MIN * EXPOSURE_US_MAX) ** 0.5)  # mid-range in EV
     # 150 µs is one stop above the minimum: plane value 1 / 8.64
     assert float(net.inputs[0][0, 4, 0, 0]) == pytest.approx(1 / np.log2(EXPOSURE_US_MAX / EXPOSURE_US_MIN), rel=1e-6)
+
+
+@pytest.mark.parametrize("given, expected", [
+    ((12.0, 500.0), (0.0, 500.0 * 10 ** 0.6)),          # all 12 dB fit into exposure: 1990.5 µs at 0 dB
+    ((12.0, 15000.0), (12.0 - 20 * np.log10(2.0), 30000.0)),  # exposure caps at 30 ms, 6.02 dB stays gain
+    ((0.0, 800.0), (0.0, 800.0)),                        # nothing to move
+])
+def test_exposure_first_keeps_the_exposure_product(given, expected):
+    s = exposure_first(Settings(*given))
+    assert (s.gain_db, s.exposure_us) == pytest.approx(expected)
+    product = lambda g, e: e * 10 ** (g / 20)  # noqa: E731
+    assert product(s.gain_db, s.exposure_us) == pytest.approx(product(*given))
+
+
+def test_allocation_option_applies_to_the_output_and_is_validated():
+    ctrl = LearnedController(Fixed((0.4, 0.0)), store_hw=(24, 32), input_hw=(24, 24), allocation="exposure_first")
+    ctrl.reset(Settings(0.0, 1000.0))
+    s = ctrl.update(_frame(10), Settings(0.0, 1000.0))
+    # the network asked for 12 dB at 75 µs: the same product at 0 dB is 75 · 10^0.6 µs
+    assert (s.gain_db, s.exposure_us) == pytest.approx((0.0, EXPOSURE_US_MIN * 10 ** 0.6))
+    with pytest.raises(ConfigError, match="controllers.learned.allocation"):
+        LearnedController(Fixed((0.0, 0.0)), store_hw=(24, 32), input_hw=(24, 24), allocation="gain_first")
 
 
 def test_keeps_three_frame_history_and_repeats_at_start():

@@ -20,27 +20,49 @@ Driving a real camera (any SDK that can read a frame with its gain/exposure and 
         cam.set_gain_db(nxt.gain_db); cam.set_exposure_us(nxt.exposure_us)   # takes effect at the next frame
 
 Use the settings the frame was actually captured with (from the camera's per-frame metadata), not the last command.
+
+`allocation` (config `controllers.learned.allocation`): "network" commands the network's gain and exposure as they
+are (the paper). "exposure_first" keeps the network's total exposure product t·10^(g/20) — the image brightness it
+asked for — but spends it on exposure time first and on gain only beyond 30 ms, as AG+AE does: less noise for the
+same signal, at the cost of motion blur. It exists because the iteration-2 network drifts to +7–10 dB gain at
+sub-millisecond exposures in daylight (README, Results).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
+from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MIN, norm_to_exposure, norm_to_gain
 from expoctl.controllers.base import Controller, Settings
 from expoctl.errors import ConfigError
 from expoctl.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
+
+
+ALLOCATIONS = ("network", "exposure_first")
+
+
+def exposure_first(settings: Settings, exposure_max_us: float = EXPOSURE_US_MAX) -> Settings:
+    """The same total exposure product t·10^(g/20), with the gain moved into exposure time up to `exposure_max_us`."""
+    if settings.gain_db <= GAIN_DB_MIN or settings.exposure_us >= exposure_max_us:
+        return settings
+    exposure = min(exposure_max_us, settings.exposure_us * 10.0 ** ((settings.gain_db - GAIN_DB_MIN) / 20.0))
+    gain = settings.gain_db - 20.0 * math.log10(exposure / settings.exposure_us)
+    return Settings(max(GAIN_DB_MIN, gain), exposure)
 
 
 class LearnedController(Controller):
     name = "learned"
 
     def __init__(self, model: torch.nn.Module, store_hw, input_hw, num_threads: int | None = 1,
-                 onnx_session=None, exposure_scale: str | None = None):
+                 onnx_session=None, exposure_scale: str | None = None, allocation: str = "network"):
+        if allocation not in ALLOCATIONS:
+            raise ConfigError("controllers.learned.allocation", f"must be one of {list(ALLOCATIONS)}, got {allocation!r}")
+        self.allocation = allocation
         self.model = model.eval()
         # the scaling the network was trained with (model.exposure_scale, recorded in its config)
         self.exposure_scale = exposure_scale or getattr(getattr(model, "cfg", None), "exposure_scale", "linear")
@@ -52,7 +74,8 @@ class LearnedController(Controller):
         self._settings: deque = deque(maxlen=N_FRAMES)
 
     @classmethod
-    def from_checkpoint(cls, path, num_threads: int | None = 1, backend: str = "torch") -> "LearnedController":
+    def from_checkpoint(cls, path, num_threads: int | None = 1, backend: str = "torch",
+                        allocation: str = "network") -> "LearnedController":
         """Load models/controller.pt; backend "onnx" runs the exported models/controller.onnx beside it."""
         from expoctl.train import load_checkpoint
 
@@ -72,7 +95,7 @@ class LearnedController(Controller):
         elif backend != "torch":
             raise ConfigError("controllers.learned.backend", f"must be torch or onnx, got {backend!r}")
         return cls(model, ckpt["store_hw"], ckpt["input_hw"], num_threads=num_threads, onnx_session=session,
-                   exposure_scale=model.cfg.exposure_scale)
+                   exposure_scale=model.cfg.exposure_scale, allocation=allocation)
 
     def reset(self, initial: Settings) -> None:
         self._frames.clear()
@@ -101,12 +124,14 @@ class LearnedController(Controller):
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
         out = self.predict_norm(self.network_input(image, applied))
         # clamp to [0, 1] then unscale (norm_to_* clamp first)
-        return Settings(float(norm_to_gain(out[0])), float(norm_to_exposure(out[1], self.exposure_scale)))
+        nxt = Settings(float(norm_to_gain(out[0])), float(norm_to_exposure(out[1], self.exposure_scale)))
+        return exposure_first(nxt) if self.allocation == "exposure_first" else nxt
 
 
 def make_learned(params: dict) -> Controller:
-    """Registry factory: params {checkpoint: models/controller.pt, backend: torch|onnx, num_threads: 1}."""
-    allowed = {"checkpoint", "backend", "num_threads"}
+    """Registry factory: params {checkpoint: models/controller.pt, backend: torch|onnx, num_threads: 1,
+    allocation: network|exposure_first}."""
+    allowed = {"checkpoint", "backend", "num_threads", "allocation"}
     unknown = set(params) - allowed
     if unknown:
         raise ConfigError(f"controllers.learned.{sorted(unknown)[0]}", f"unknown key (known: {sorted(allowed)})")
@@ -114,7 +139,8 @@ def make_learned(params: dict) -> Controller:
     nt = params.get("num_threads", 1)
     if nt is not None and (not isinstance(nt, int) or nt < 1):
         raise ConfigError("controllers.learned.num_threads", f"must be a positive int or null, got {nt!r}")
-    return LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"))
+    return LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"),
+                                             allocation=params.get("allocation", "network"))
 
 
 def register_learned() -> None:
