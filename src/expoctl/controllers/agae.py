@@ -55,6 +55,19 @@ DEFAULTS: dict = {
 }
 
 
+def ln_exposure_product(s: Settings) -> float:
+    """ln of the total exposure product t·10^(g/20) (t in µs): what brightness the settings ask for."""
+    return math.log(s.exposure_us) + s.gain_db / _DB_PER_LN
+
+
+def split_exposure_first(ln_p: float, t_lo: float = EXPOSURE_US_MIN, t_hi: float = EXPOSURE_US_MAX,
+                         g_lo: float = GAIN_DB_MIN, g_hi: float = GAIN_DB_MAX) -> Settings:
+    """Spend an exposure product on exposure time first (gain at g_lo until t reaches t_hi), within the limits."""
+    t = float(np.clip(math.exp(ln_p - g_lo / _DB_PER_LN), t_lo, t_hi))
+    g = float(np.clip((ln_p - math.log(t)) * _DB_PER_LN, g_lo, g_hi))
+    return Settings(g, t).clamped()
+
+
 def _validate(p: dict, prefix: str) -> None:
     k = prefix + "."
     require(0.0 < p["target_grey_pct"] < 100.0, k + "target_grey_pct", "must be in (0, 100) percent of full scale")
@@ -118,7 +131,7 @@ class AgAeController(Controller):
     # ------------------------------------------------------------------------------------------------ public API
     def reset(self, initial: Settings) -> None:
         s = initial.clamped()
-        self._ln_p = float(np.clip(self._ln_product(s), self._ln_p_min, self._ln_p_max))
+        self._ln_p = float(np.clip(ln_exposure_product(s), self._ln_p_min, self._ln_p_max))
         self._pending: deque[float] = deque()  # ln P* of frames metered but not yet acted on (internal latency)
 
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
@@ -131,10 +144,6 @@ class AgAeController(Controller):
         return self.split(self._ln_p)
 
     # ------------------------------------------------------------------------------------------------ internals
-    @staticmethod
-    def _ln_product(s: Settings) -> float:
-        return math.log(s.exposure_us) + s.gain_db / _DB_PER_LN
-
     def metered_mean(self, image: np.ndarray) -> float:
         """Linear metered mean in [0, 1], floored at `min_linear_mean`."""
         p = self.params
@@ -143,7 +152,7 @@ class AgAeController(Controller):
 
     def _ideal_ln_product(self, image: np.ndarray, applied: Settings) -> float:
         s = applied.clamped()
-        return self._ln_product(s) + math.log(self.target_linear / self.metered_mean(image))
+        return ln_exposure_product(s) + math.log(self.target_linear / self.metered_mean(image))
 
     def split(self, ln_p: float) -> Settings:
         """Distribute the product over exposure and gain according to the priority, within the limits."""
@@ -151,7 +160,7 @@ class AgAeController(Controller):
         t_lo, t_hi = p["exposure_lower_us"], p["exposure_upper_us"]
         g_lo, g_hi = p["gain_lower_db"], p["gain_upper_db"]
         if p["priority"] == "exposure_first":
-            t = float(np.clip(math.exp(ln_p - g_lo / _DB_PER_LN), t_lo, t_hi))
+            return split_exposure_first(ln_p, t_lo, t_hi, g_lo, g_hi)
         else:  # gain_first: exposure parked at gain_first_exposure_us; it moves only when gain is at a limit
             t_fix = p["gain_first_exposure_us"]
             g_needed = (ln_p - math.log(t_fix)) * _DB_PER_LN

@@ -30,14 +30,14 @@ sub-millisecond exposures in daylight (README, Results).
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MIN, norm_to_exposure, norm_to_gain
+from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
+from expoctl.controllers.agae import ln_exposure_product, split_exposure_first
 from expoctl.controllers.base import Controller, Settings
 from expoctl.errors import ConfigError
 from expoctl.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
@@ -46,13 +46,10 @@ from expoctl.preprocess import N_FRAMES, assemble_input, prepare_frame, settings
 ALLOCATIONS = ("network", "exposure_first")
 
 
-def exposure_first(settings: Settings, exposure_max_us: float = EXPOSURE_US_MAX) -> Settings:
-    """The same total exposure product t·10^(g/20), with the gain moved into exposure time up to `exposure_max_us`."""
-    if settings.gain_db <= GAIN_DB_MIN or settings.exposure_us >= exposure_max_us:
-        return settings
-    exposure = min(exposure_max_us, settings.exposure_us * 10.0 ** ((settings.gain_db - GAIN_DB_MIN) / 20.0))
-    gain = settings.gain_db - 20.0 * math.log10(exposure / settings.exposure_us)
-    return Settings(max(GAIN_DB_MIN, gain), exposure)
+def exposure_first(settings: Settings) -> Settings:
+    """The same total exposure product t·10^(g/20), with the gain moved into exposure time up to 30 ms (AG+AE's
+    exposure-first split)."""
+    return split_exposure_first(ln_exposure_product(settings))
 
 
 class LearnedController(Controller):
