@@ -194,6 +194,26 @@ class TabulatedResponse:
         return out
 
 
+@dataclass(frozen=True)
+class ChannelResponse:
+    """One parametric curve per colour channel, each after its own digital gain (white balance):
+    code_c = responses[c].code(gains[c]·x_c). Film and many camera pipelines have per-channel tone curves; our sensor's
+    8-bit stage applies one curve to all channels, so this is a calibration-side model (see `fit_parametric_response`).
+    """
+
+    responses: tuple[ParametricResponse, ParametricResponse, ParametricResponse]
+    gains: tuple[float, float, float]
+
+    def code(self, x_norm: np.ndarray) -> np.ndarray:
+        x = np.asarray(x_norm, np.float64)
+        if x.ndim == 0 or x.shape[-1] != 3:
+            raise ValueError(f"x must have a last axis of 3 channels, got shape {x.shape}")
+        out = np.empty(x.shape, np.float64)
+        for c in range(3):
+            out[..., c] = self.responses[c].code(self.gains[c] * x[..., c])
+        return out
+
+
 def code_histogram(images: list[np.ndarray]) -> np.ndarray:
     """(256, 3) counts of each code per channel over the images: weights for `fit_parametric_response`."""
     return np.stack([sum(np.bincount(im[..., c].ravel(), minlength=256) for im in images) for c in range(3)], axis=1)
@@ -201,8 +221,8 @@ def code_histogram(images: list[np.ndarray]) -> np.ndarray:
 
 def fit_parametric_response(response: np.ndarray, curve: str = "srgb", fit_gamma: bool = False,
                             fit_offset: bool = True, code_weights: np.ndarray | None = None,
-                            code_range: tuple[int, int] = (FLOOR_DN + 1, SATURATED_DN - 1)
-                            ) -> tuple[ParametricResponse, float, dict]:
+                            code_range: tuple[int, int] = (FLOOR_DN + 1, SATURATED_DN - 1),
+                            per_channel: bool = False) -> tuple[ParametricResponse | ChannelResponse, float, dict]:
     """Least-squares fit of a `ParametricResponse` to a recovered curve, in code space (what the RMSE measures).
 
     Each code z in `code_range` and channel gives a point (X(z), z); the model is z ≈ code(X / x_full_scale) with one
@@ -210,10 +230,29 @@ def fit_parametric_response(response: np.ndarray, curve: str = "srgb", fit_gamma
     the training brackets, weights each point by how many pixels carry that code, so the fit minimises the expected
     squared code error of an image rather than of the (sparsely sampled, noisy) curve ends. Returns (response,
     x_full_scale, info) with the fit's (weighted) RMSE in codes.
+
+    per_channel=True fits each channel on its own (its own scale, gamma and pedestal) and returns a `ChannelResponse`:
+    x_full_scale is the largest channel scale and each channel's gain is x_full_scale / its own scale (≥ 1), so no
+    channel needs a linear signal above ADC full scale to reach code 255. The per-channel scales themselves carry no
+    information (the recovered curve pins X(128) = 1 in each channel, an arbitrary unit per channel); the per-channel
+    gammas and pedestals are the extra model.
     """
     response = np.asarray(response, np.float64)
     if response.shape != (256, 3):
         raise ValueError(f"response must be (256, 3), got {response.shape}")
+    if per_channel:
+        w = np.ones((256, 3)) if code_weights is None else np.asarray(code_weights, np.float64)
+        fits = [fit_parametric_response(np.repeat(response[:, c:c + 1], 3, axis=1), curve, fit_gamma, fit_offset,
+                                        np.repeat(w[:, c:c + 1], 3, axis=1), code_range) for c in range(3)]
+        scales = np.array([f[1] for f in fits])
+        x_fs = float(scales.max())
+        fitted = ChannelResponse(tuple(f[0] for f in fits), tuple(float(x_fs / s) for s in scales))
+        per = np.array([f[2]["fit_rmse_codes"] for f in fits])
+        share = w[code_range[0]:code_range[1] + 1].sum(axis=0)
+        info = {"fit_rmse_codes": float(np.sqrt(np.sum(per ** 2 * share) / share.sum())), "codes": list(code_range),
+                "gamma_rgb": [f[0].gamma for f in fits], "offset_codes_rgb": [255 * f[0].offset for f in fits],
+                "gain_rgb": list(fitted.gains)}
+        return fitted, x_fs, info
     lo, hi = code_range
     codes = np.arange(lo, hi + 1, dtype=np.float64)
     ln_x = np.log(np.maximum(response[lo:hi + 1], 1e-300)).ravel()  # (n·3,)
@@ -306,3 +345,91 @@ def reexpose(sensor: Sensor, radiance: np.ndarray, time_s: float, kappa: float, 
     luminance = (np.asarray(radiance, np.float32) * np.float32(electrons_per_unit / per_cd_m2))
     raw = sensor.capture_raw(luminance, exposure_us, gain_db, rng)
     return apply_lut(raw, lut)
+
+
+# ---------------------------------------------------------------- residual diagnostics
+
+def estimate_noise_sigma(image: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Per-channel temporal-noise σ of one frame in codes, from the frame alone (Immerkær 1996): the 3×3 kernel
+    [[1, −2, 1], [−2, 4, −2], [1, −2, 1]] cancels any locally planar signal and multiplies white noise's variance by
+    36, so K∗I has σ_K = 6σ. Immerkær averages |K∗I| (σ = √(π/2)·mean|K∗I| / 6); here the median is used, for which
+    median|N(0, σ_K)| = 0.6745·σ_K, so σ = median|K∗I| / (6 · 0.6745): edges are outliers and do not move a median.
+    Used to split a real-vs-model RMSE into the real frame's own noise and the rest. Returns (channels,) float64."""
+    img = np.asarray(image, np.float64)
+    if img.ndim == 2:
+        img = img[..., None]
+    m = np.ones(img.shape, bool) if mask is None else np.asarray(mask, bool).reshape(img.shape)
+    m = m.copy()
+    m[:1], m[-1:], m[:, :1], m[:, -1:] = False, False, False, False  # the kernel needs all 8 neighbours
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float64)
+    out = []
+    for c in range(img.shape[2]):
+        response = cv2.filter2D(img[..., c], cv2.CV_64F, kernel, borderType=cv2.BORDER_REPLICATE)
+        sel = m[..., c]
+        out.append(np.median(np.abs(response[sel])) / (6.0 * 0.6744897501960817) if sel.any() else np.nan)
+    return np.asarray(out)
+
+
+def rmse_after_code_bias(predicted: np.ndarray, real: np.ndarray, mask: np.ndarray) -> float:
+    """RMSE (% of 255) left after removing, per channel, the mean error at each real code: what a perfect per-code
+    correction of the tone curve could remove is the difference to `rmse_percent`. Diagnostic: it uses the compared
+    frame itself."""
+    pred = np.asarray(predicted, np.float64)
+    real_i = np.asarray(real)
+    resid = []
+    for c in range(real_i.shape[-1]):
+        sel = mask[..., c]
+        z = real_i[..., c][sel].astype(np.int64)
+        d = pred[..., c][sel] - z
+        bias = np.bincount(z, d, 256) / np.maximum(np.bincount(z, None, 256), 1)
+        resid.append(d - bias[z])
+    r = np.concatenate(resid)
+    if r.size == 0:
+        raise ValueError("no samples to compare")
+    return float(100.0 * np.sqrt(np.mean(r * r)) / 255.0)
+
+
+def local_shift_fit(predicted: np.ndarray, real: np.ndarray, mask: np.ndarray, tile: int = 32,
+                    max_shift_px: float = 1.5, min_samples: int = 50, iterations: int = 4
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Diagnostic registration bound: per `tile`×`tile` block, the sub-pixel translation s (`iterations`
+    Lucas–Kanade steps on the shifted prediction's Sobel gradients, least squares over the block's masked samples,
+    clipped to ±max_shift_px)
+    that best maps the prediction onto the real frame, real(x) ≈ pred(x + s); returns (the prediction resampled
+    with each block's shift (bilinear, float64), shifts (tiles_y, tiles_x, 2) as (dx, dy), NaN where a block has
+    fewer than `min_samples`). It uses the compared frame, so it is not a validation number: the drop in RMSE
+    bounds how much of the residual is local misregistration between the real frames (any local geometric
+    mismatch up to ~1 px, plus whatever photometric error happens to correlate with the gradient)."""
+    pred = np.asarray(predicted, np.float32)
+    real_f = np.asarray(real, np.float32)
+    if pred.shape != real_f.shape or pred.ndim != 3:
+        raise ValueError(f"predicted and real must be HxWxC of the same shape, got {pred.shape}, {real_f.shape}")
+    h, w, ch = pred.shape
+    gx = np.stack([cv2.Sobel(pred[..., c], cv2.CV_32F, 1, 0, borderType=cv2.BORDER_REPLICATE) / 8
+                   for c in range(ch)], -1)
+    gy = np.stack([cv2.Sobel(pred[..., c], cv2.CV_32F, 0, 1, borderType=cv2.BORDER_REPLICATE) / 8
+                   for c in range(ch)], -1)
+    out = pred.astype(np.float64).copy()
+    ny, nx = -(-h // tile), -(-w // tile)
+    shifts = np.full((ny, nx, 2), np.nan)
+    for ty in range(ny):
+        for tx in range(nx):
+            sl = (slice(ty * tile, (ty + 1) * tile), slice(tx * tile, (tx + 1) * tile))
+            mm = np.asarray(mask, bool)[sl]
+            if mm.sum() < min_samples:
+                continue
+            ys, xs = np.mgrid[sl].astype(np.float32)
+            s = np.zeros(2)
+            for _ in range(max(1, iterations)):
+                warp = [xs + np.float32(s[0]), ys + np.float32(s[1])]
+                moved = cv2.remap(pred, *warp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(mm.shape)
+                a = np.stack([cv2.remap(gx, *warp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                              .reshape(mm.shape)[mm],
+                              cv2.remap(gy, *warp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                              .reshape(mm.shape)[mm]], 1).astype(np.float64)
+                b = (real_f[sl] - moved)[mm].astype(np.float64)
+                s = np.clip(s + np.linalg.lstsq(a, b, rcond=None)[0], -max_shift_px, max_shift_px)
+            shifts[ty, tx] = s
+            out[sl] = cv2.remap(pred, xs + np.float32(s[0]), ys + np.float32(s[1]), cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REPLICATE).reshape(mm.shape)
+    return out, shifts
