@@ -1,9 +1,13 @@
 """Sensor speed: ms per 640×480 RGB capture, fused `capture` vs `raw_to_8bit(capture_raw(...))`, and peak memory.
 
-Usage: .venv/bin/python benchmarks/sensor_speed.py [--repeats 25] [--width 640] [--height 480] [--warm-numba-cache]
-Prints a table and writes benchmarks/results/sensor_speed.json. Target: ≤ ~20 ms per frame on one core.
+Usage: .venv/bin/python benchmarks/sensor_speed.py [--repeats 25] [--width 640] [--height 480] [--threads 2]
+       [--warm-numba-cache] [--src OTHER_SRC]
+Prints a table and writes benchmarks/results/sensor_speed.json. Target: ≤ ~20 ms per frame.
 
-One core: BLAS/OpenMP and numba are pinned to one thread before import (the sensor's kernels are serial anyway).
+Threads: numba's kernels run on `--threads` threads (default 2, this machine's cores; BLAS/OpenMP pinned to 1); the
+frame's random draws (numpy, one stream) stay on one thread. `--threads 1` gives the one-core figure. `--src` times
+another checkout's src/ (e.g. `git archive HEAD~1 src | tar -x -C /tmp/old`, then `--src /tmp/old/src`), to compare
+versions back to back on the same machine state.
 Scenes are a fixed log-normal texture (σ = 1 in ln L, i.e. ~±1.4 stops) scaled so that, at 5 ms and 6 dB, the median
 pixel collects ~2600 electrons (bright: half the ADC range at 6 dB, where it clips at ~5200 e-; a quarter of the
 pixels clip), ~840 (mid), or ~3 (dark: most pixels take the exact-Poisson shot-noise branch, below
@@ -24,9 +28,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ[_var] = "1"
 _ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+_ap.add_argument("--threads", type=int, default=2, help="numba threads (default 2)")
+_ap.add_argument("--src", type=Path, default=None, help="import expoctl from this src/ instead of the project's")
 _ap.add_argument("--repeats", type=int, default=25)
 _ap.add_argument("--width", type=int, default=640)
 _ap.add_argument("--height", type=int, default=480)
@@ -35,6 +39,9 @@ _ap.add_argument("--warm-numba-cache", action="store_true", help="use the projec
 _ap.add_argument("--out", type=Path,
                  default=Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "sensor_speed.json")
 ARGS = _ap.parse_args()
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+os.environ["NUMBA_NUM_THREADS"] = str(ARGS.threads)
 _TMP_CACHE = None
 if not ARGS.warm_numba_cache:
     _TMP_CACHE = tempfile.TemporaryDirectory(prefix="numba-cache-")
@@ -48,7 +55,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ARGS.src.resolve() if ARGS.src else ROOT / "src"))
 
 from expoctl.camera.sensor import Sensor, SensorConfig  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
@@ -126,7 +133,7 @@ def main() -> int:
     med = lambda d: {s: {p: round(float(np.median(v)), 2) for p, v in d[s].items()} for s in d}  # noqa: E731
     result = {
         "width": w, "height": h, "channels": 3, "exposure_us": EXPOSURE_US, "gain_db": GAIN_DB,
-        "repeats": args.repeats, "numba_threads": numba.get_num_threads(), "cpu_count": os.cpu_count(),
+        "repeats": args.repeats, "src": str(args.src or "project"), "numba_threads": numba.get_num_threads(), "cpu_count": os.cpu_count(),
         "load_average_1_5_15min": [round(x, 2) for x in load_avg], "python": platform.python_version(),
         "numpy": np.__version__, "numba": numba.__version__,
         "numba_cache": "project cache" if args.warm_numba_cache else "fresh temporary cache (includes compilation)",
@@ -137,7 +144,7 @@ def main() -> int:
         "peak_traced_alloc_mb": peak_mb, "scenes": scene_info, "target_ms": 20.0,
     }
     print(f"sensor speed, {w}x{h} RGB, {EXPOSURE_US:g} µs, {GAIN_DB:g} dB, {args.repeats} repeats, "
-          f"{result['numba_threads']} numba thread, load avg {load_avg[0]:.2f} / {load_avg[1]:.2f} / {load_avg[2]:.2f} "
+          f"{result['numba_threads']} numba thread(s), src {result['src']}, load avg {load_avg[0]:.2f} / {load_avg[1]:.2f} / {load_avg[2]:.2f} "
           f"on {os.cpu_count()} cores")
     print(f"first call (numba {result['numba_cache']}): "
           + ", ".join(f"{p} {v:.0f} ms" for p, v in result["first_call_ms"].items()))
