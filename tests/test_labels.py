@@ -139,6 +139,39 @@ def test_frontend_selects_counts():
     assert pick(compute_labels(frames, features, matches, {"frontend": "viso"}), "feat", 0).target_frame_id == 4
 
 
+def test_combined_frontend_weighs_each_relative_to_its_best():
+    # t = 0, window frames 1 … 4, feature counts (ORB, viso):
+    #   (1, cam 1): ORB 1000 (best) + viso 10 → 1 + 10/100 = 1.10
+    #   (2, cam 2): ORB 900 + viso 100 (best) → 0.9 + 1 = 1.90   ← wins: second on ORB, best on viso
+    #   default images: ORB 10, viso 10 → 0.01 + 0.1
+    # A raw sum would pick (1, cam 1) (1010 vs 1000): ORB's larger counts would decide alone.
+    frames, f_orb, m_orb = make_tables(5, feat={(1, 1): 1000, (2, 2): 900})
+    _, f_viso, m_viso = make_tables(5, feat={(1, 1): 10, (2, 2): 100}, frontend="viso")
+    features, matches = pd.concat([f_orb, f_viso]), pd.concat([m_orb, m_viso])
+    row = pick(compute_labels(frames, features, matches, {"frontend": "orb+viso"}), "feat", 0)
+    assert (row.target_frame_id, row.target_camera) == (2, 2)
+    assert row.score == pytest.approx(1.9)
+    assert pick(compute_labels(frames, features, matches, {"frontend": "orb"}), "feat", 0).target_frame_id == 1
+    # matches: every pair 5 inliers on both → all candidates score 2, the tie goes to the earliest pair, camera 1
+    m = pick(compute_labels(frames, features, matches, {"frontend": "orb+viso"}), "match", 0)
+    assert (m.target_frame_id, m.target_camera, m.source_camera, m.score, m.n_tied) == (1, 1, 1, 2.0, 16)
+
+
+def test_combined_frontend_zero_counts_contribute_nothing():
+    # viso finds nothing anywhere in the window (all 0): the ORB choice stands, with a score of 1 (no 0/0 NaN)
+    frames, f_orb, m_orb = make_tables(5, feat={(3, 2): 50})
+    _, f_viso, m_viso = make_tables(5, feat={(f, c): 0 for f in range(5) for c in (1, 2)}, frontend="viso")
+    row = pick(compute_labels(frames, pd.concat([f_orb, f_viso]), pd.concat([m_orb, m_viso]),
+                              {"frontend": "orb+viso"}), "feat", 0)
+    assert (row.target_frame_id, row.target_camera, row.score) == (3, 2, 1.0)
+
+
+def test_combined_frontend_needs_both_frontends():
+    frames, features, matches = make_tables(5)  # ORB rows only
+    with pytest.raises(InputError, match="viso"):
+        compute_labels(frames, features, matches, {"frontend": "orb+viso"})
+
+
 @pytest.mark.parametrize("cfg, key", [
     ({"frontend": "sift"}, "labels.frontend"),
     ({"window": 0}, "labels.window"),

@@ -8,6 +8,9 @@ For a time step t of one sequence the window is the frames t+1 … t+W (W = `win
   pairs included), the one with the most inlier matches; the target is the settings of the *later* image (t+b+1, j).
 - M_hybrid: weighted average of the two targets' settings (`hybrid_feat_weight` on M_feat, the rest on M_match).
 
+"Most" is counted by one front end (`frontend: orb | viso`) or by both (`orb+viso`): each candidate's ORB and
+libviso2-style counts, each divided by the best candidate's count of that front end in the same window, summed.
+
 Tie-breaking (deterministic, by candidate order; the first maximum wins):
   1. the earliest frame in the window (smaller a, or smaller b): it is the nearest pose to t+1, where the settings
      computed at t take effect, so it approximates "the same pose" best;
@@ -35,6 +38,7 @@ from expoctl.errors import ConfigError, InputError
 
 METRICS = ("feat", "match", "hybrid")
 FRONTENDS = ("orb", "viso")
+COMBINED_FRONTEND = "orb+viso"  # both front ends' counts, each relative to its best candidate (see _relative_sum)
 EXPOSURE_AVERAGES = ("linear", "log")
 CAMERAS = (1, 2)
 
@@ -49,7 +53,7 @@ LABEL_COLUMNS = (
 
 @dataclass(frozen=True)
 class LabelConfig:
-    frontend: str = "orb"  # whose counts define "most features" / "most inlier matches"
+    frontend: str = "orb"  # whose counts define "most features" / "most inlier matches": orb | viso | orb+viso
     window: int = 4  # future frames t+1 … t+window (paper: 4, one full quadrant cycle of the perturbation)
     hybrid_feat_weight: float = 0.5  # M_hybrid = w·M_feat + (1 − w)·M_match (paper default: equal weights)
     # How M_hybrid averages exposure. "linear" (default) follows the paper ("the weighted average of the parameter
@@ -66,8 +70,9 @@ class LabelConfig:
         if unknown:
             raise ConfigError(f"{group}.{unknown[0]}", f"unknown key (known: {', '.join(cls.__dataclass_fields__)})")
         cfg = cls(**d)
-        if cfg.frontend not in FRONTENDS:
-            raise ConfigError(f"{group}.frontend", f"must be one of {', '.join(FRONTENDS)}; got {cfg.frontend!r}")
+        if cfg.frontend not in FRONTENDS + (COMBINED_FRONTEND,):
+            raise ConfigError(f"{group}.frontend",
+                              f"must be one of {', '.join(FRONTENDS + (COMBINED_FRONTEND,))}; got {cfg.frontend!r}")
         if isinstance(cfg.window, bool) or not isinstance(cfg.window, int) or cfg.window < 1:
             raise ConfigError(f"{group}.window", f"must be an integer ≥ 1; got {cfg.window!r}")
         w = cfg.hybrid_feat_weight
@@ -266,24 +271,41 @@ def _argmax_first(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return k, best, n_tied
 
 
+def _relative_sum(per_frontend: list[np.ndarray]) -> np.ndarray:
+    """Candidate scores (rows × candidates) summed over front ends, each divided by its best candidate in the row.
+
+    Why relative: ORB's inlier counts run several times the libviso2-style ones, so a raw sum would be ORB's choice
+    again. Dividing by the row's maximum gives each front end the same say in every window (a score of 2 = best for
+    both). A front end with no feature or match anywhere in the window (max 0) contributes 0 to every candidate."""
+    total = np.zeros_like(per_frontend[0], dtype=float)
+    for v in per_frontend:
+        best = v.max(axis=1, keepdims=True)
+        total += np.divide(v, best, out=np.zeros_like(v, dtype=float), where=best > 0)
+    return total
+
+
 def compute_labels(frames: pd.DataFrame, features: pd.DataFrame, matches: pd.DataFrame,
                    cfg: LabelConfig | Mapping | None = None, names: Mapping[str, str] | None = None) -> pd.DataFrame:
     """The labels table: one row per labelled (sequence, frame_id) and metric (feat, match, hybrid)."""
     cfg = cfg if isinstance(cfg, LabelConfig) else LabelConfig.from_dict(cfg)
     names = {"frames": "frames", "features": "features", "matches": "matches", **(names or {})}
     idx = index_frames(frames, names["frames"])
-    n_feat = feature_counts(features, idx, cfg.frontend, names["features"])
-    n_inl = match_counts(matches, idx, cfg.frontend, names["matches"])
+    used = FRONTENDS if cfg.frontend == COMBINED_FRONTEND else (cfg.frontend,)
+    n_feat = [feature_counts(features, idx, f, names["features"]) for f in used]
+    n_inl = [match_counts(matches, idx, f, names["matches"]) for f in used]
     w = cfg.window
     rows = np.flatnonzero(idx.has_ahead(w))  # t … t+w all present in the same sequence
+    # one front end: its raw counts (score = count); orb+viso: the relative sum (score in [0, 2])
+    combine = _relative_sum if len(used) > 1 else (lambda v: v[0])
 
     # M_feat: candidates ordered (a, camera) → first max = earliest frame, then camera 1.
     ahead = rows[:, None] + np.arange(1, w + 1)
-    k, f_score, f_tied = _argmax_first(n_feat[ahead].reshape(len(rows), 2 * w))
+    k, f_score, f_tied = _argmax_first(combine([n[ahead].reshape(len(rows), 2 * w) for n in n_feat]))
     f_row, f_cam = rows + 1 + k // 2, k % 2
     # M_match: candidates ordered (b, cam_to j, cam_from i) → earliest pair, then target camera 1, then source 1.
     pairs = rows[:, None] + np.arange(w)
-    k, m_score, m_tied = _argmax_first(n_inl[pairs].transpose(0, 1, 3, 2).reshape(len(rows), 4 * w))
+    k, m_score, m_tied = _argmax_first(
+        combine([n[pairs].transpose(0, 1, 3, 2).reshape(len(rows), 4 * w) for n in n_inl]))
     m_row, m_cam, m_src = rows + 1 + k // 4, (k // 2) % 2, k % 2
 
     g_f, e_f = idx.gain_db[f_row, f_cam], idx.exposure_us[f_row, f_cam]
