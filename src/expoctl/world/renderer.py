@@ -42,7 +42,10 @@ def _rgb_norm(rgb):
 
 
 RENDER_KEYS = ("width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes",
-               "share_render")
+               "share_render", "backend")
+# numba: the CPU ray caster (shade.render_kernel); egl: the same ray caster as a GLSL shader on a headless EGL
+# OpenGL 4.5 context (gl_renderer.GLRenderer; moderngl, e.g. Mesa llvmpipe)
+BACKENDS = ("numba", "egl")
 
 
 def validate_render_config(render_cfg: dict) -> None:
@@ -72,6 +75,8 @@ def validate_render_config(render_cfg: dict) -> None:
         raise ConfigError("world.render.blur", f"must be 'fast' or 'reference', got {render_cfg['blur']!r}")
     if "share_render" in render_cfg and not isinstance(render_cfg["share_render"], bool):
         raise ConfigError("world.render.share_render", f"must be true or false, got {render_cfg['share_render']!r}")
+    if "backend" in render_cfg and render_cfg["backend"] not in BACKENDS:
+        raise ConfigError("world.render.backend", f"must be one of {', '.join(BACKENDS)}, got {render_cfg['backend']!r}")
 
 
 class Renderer:
@@ -115,9 +120,14 @@ class Renderer:
 
     @classmethod
     def from_config(cls, city: City, render_cfg: dict, conditions: Conditions | None = None) -> "Renderer":
-        """Build from the `world.render` config group (keys as in conf/world/default.yaml); unknown keys are errors."""
+        """Build from the `world.render` config group (keys as in conf/world/default.yaml); unknown keys are errors.
+        backend 'egl' returns a gl_renderer.GLRenderer (ConfigError world.render.backend if no EGL context)."""
         validate_render_config(render_cfg)
-        return cls(city, conditions=conditions, **render_cfg)
+        cfg = dict(render_cfg)
+        if cfg.pop("backend", "numba") == "egl":
+            from expoctl.world.gl_renderer import GLRenderer
+            return GLRenderer(city, conditions=conditions, **cfg)
+        return cls(city, conditions=conditions, **cfg)
 
     # ------------------------------------------------------------------ lighting setup
     def _static_lighting(self, cfg, mip_bias, tmax_m):
@@ -294,14 +304,19 @@ class Renderer:
         sharp = self._cache[key]
         pa = self._offset_pose(trajectory.pose_at(t0), camera_offset_m)
         pb = self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m)
-        out = np.empty_like(sharp["luminance"])
-        K = self.K
-        max_shift = _blur_kernel(sharp["luminance"], sharp["depth"], K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                                 np.ascontiguousarray(sharp["pose"]), np.ascontiguousarray(pa),
-                                 np.ascontiguousarray(pb), out)
+        out, max_shift = self._smear(sharp, pa, pb)
         if max_shift < 0.5:  # no visible motion: the sharp render, untouched by resampling
             return self.apply_glare(sharp["luminance"])
         return self.apply_glare(out)
+
+    def _smear(self, sharp: dict, pose_a: np.ndarray, pose_b: np.ndarray) -> tuple[np.ndarray, float]:
+        """(luminance smeared along the flow to poses a and b, largest flow component in px); see _blur_kernel."""
+        out = np.empty_like(sharp["luminance"])
+        K = self.K
+        max_shift = _blur_kernel(sharp["luminance"], sharp["depth"], K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                                 np.ascontiguousarray(sharp["pose"]), np.ascontiguousarray(pose_a),
+                                 np.ascontiguousarray(pose_b), out)
+        return out, max_shift
 
     def _flow(self, depth, pose_ref, pose_a, pose_b):
         """Pixel displacement (H, W, 2) of each rendered point from the reference pose to poses a and b."""
