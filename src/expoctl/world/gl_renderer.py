@@ -39,7 +39,7 @@ CULL_MARGIN_M = 1.0e-3
 
 # extra per-segment columns appended to the route table for the shader (all computed in float64 on the CPU)
 _C_SCELL, _C_SREM, _C_FCELL, _C_FREM, _C_S12, _C_TX0 = range(rt.NCOL, rt.NCOL + 6)
-SEG_STRIDE = rt.NCOL + 6
+SEG_STRIDE = (rt.NCOL + 6 + 3) // 4 * 4  # whole vec4s per segment (uniform-block layout, shaders/trace.glsl)
 
 _CTX = None  # one GL context per process, created on first use
 _PROGRAMS: dict = {}
@@ -80,11 +80,19 @@ def _header() -> str:
     return "\n".join(lines) + "\n"
 
 
-def _programs(ctx, n_mat: int):
-    key = n_mat
+def _vec4s(n: int) -> int:
+    return max(1, (int(n) + 3) // 4)
+
+
+def _programs(ctx, sizes: dict):
+    """(render program, blur program) for these array sizes (uniform-block arrays are sized at compile time)."""
+    key = tuple(sorted(sizes.items()))
     if key not in _PROGRAMS:
         vert = (_SHADERS / "fullscreen_vert.glsl").read_text()
-        render_src = (_header() + f"const int N_MAT = {n_mat};\n" + (_SHADERS / "trace.glsl").read_text()
+        defs = "".join(f"#define {k} {int(v)}\n" for k, v in sizes.items() if k != "SEG_IN_UBO")
+        if sizes["SEG_IN_UBO"]:
+            defs += "#define SEG_IN_UBO\n"
+        render_src = (_header() + defs + (_SHADERS / "trace.glsl").read_text()
                       + (_SHADERS / "shade.glsl").read_text())
         _PROGRAMS[key] = (ctx.program(vertex_shader=vert, fragment_shader=render_src),
                           ctx.program(vertex_shader=vert, fragment_shader=(_SHADERS / "blur.glsl").read_text()))
@@ -98,6 +106,12 @@ def _set(prog, name, value):
             prog[name].write(value)
         else:
             prog[name].value = value
+
+
+def _pad4(a, dtype) -> bytes:
+    """Values as a whole number of vec4/ivec4 (std140 array elements)."""
+    a = np.asarray(a).ravel().astype(dtype)
+    return np.concatenate([a, np.zeros(_vec4s(a.size) * 4 - a.size, dtype)]).tobytes()
 
 
 def _mat3(m) -> bytes:
@@ -141,7 +155,13 @@ class GLRenderer(Renderer):
         if self._gl is not None:
             return self._gl
         ctx = gl_context()
-        prog, blur = _programs(ctx, self.offs.shape[0])
+        n_mat = self.offs.shape[0]
+        seg_bytes = self._seg64.size * 4
+        sizes = {"N_MAT": n_mat, "LP_VEC4": _vec4s(rc.LP_N), "LAMP_VEC4": _vec4s(self.lamp_mult.size),
+                 "TUN_VEC4": _vec4s(len(self._lamp_count)), "LEVEL_VEC4": _vec4s(2 * self.offs.size),
+                 "MAT_VEC4": _vec4s(2 * n_mat), "SEG_IN_UBO": int(seg_bytes <= ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"]),
+                 "SEG_VEC4_TOTAL": self._seg64.size // 4}
+        prog, blur = _programs(ctx, sizes)
         key = id(self.texels)
         if key not in _ATLAS_BUFFERS or _ATLAS_BUFFERS[key][0] is not self.texels:
             if len(_ATLAS_BUFFERS) >= 3:
@@ -153,9 +173,8 @@ class GLRenderer(Renderer):
             packed = rgb[:, 0] | (rgb[:, 1] << 8) | (rgb[:, 2] << 16)  # unpackUnorm4x8 reads r from the low byte
             if np.any(self.offs % 3):
                 raise ValueError("texture atlas levels must start on a texel boundary")
-            levels = np.concatenate([(self.offs // 3).ravel(), self.sizes.ravel()]).astype(np.int32)
-            _ATLAS_BUFFERS[key] = (self.texels, (ctx.buffer(packed.tobytes()), ctx.buffer(levels.tobytes())))
-        texel_buf, level_buf = _ATLAS_BUFFERS[key][1]
+            _ATLAS_BUFFERS[key] = (self.texels, (ctx.buffer(packed.tobytes()),))
+        texel_buf = _ATLAS_BUFFERS[key][1][0]
         w, h = self.width, self.height
         sharp = ctx.texture((w, h), 4, dtype="f4")
         codes = ctx.texture((w, h), 2, dtype="u1")
@@ -163,14 +182,18 @@ class GLRenderer(Renderer):
         upload = ctx.texture((w, h), 4, dtype="f4")
         for t in (sharp, codes, smeared, upload):
             t.filter = (ctx.NEAREST, ctx.NEAREST)
-        mat_props = np.concatenate([self.albedo, self.scales]).astype(np.float32)
+        levels = np.concatenate([(self.offs // 3).ravel(), self.sizes.ravel()])
+        mat_props = np.concatenate([self.albedo, self.scales])
+        # the Params block's constant arrays (offsets in 16-byte vec4 units); lp and lamp_mult change per conditions
+        self._params_static = (_pad4(self._lamp_count, np.int32), _pad4(levels, np.int32), _pad4(mat_props, np.float32))
+        params_bytes = 16 * (sizes["LP_VEC4"] + sizes["LAMP_VEC4"] + sizes["TUN_VEC4"] + sizes["LEVEL_VEC4"]
+                             + sizes["MAT_VEC4"])
+        if params_bytes > ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"]:
+            raise ValueError(f"too many tunnel lamps for the GL backend's uniform block ({params_bytes} bytes)")
         self._gl = {
             "ctx": ctx, "prog": prog, "blur": blur, "vao": ctx.vertex_array(prog, []),
-            "vao_blur": ctx.vertex_array(blur, []), "texels": texel_buf, "levels": level_buf,
-            "seg": ctx.buffer(reserve=self._seg64.size * 4), "lp": ctx.buffer(reserve=rc.LP_N * 4),
-            "lamp_mult": ctx.buffer(reserve=max(1, self.lamp_mult.size) * 4),
-            "lamp_count": ctx.buffer(self._lamp_count.astype(np.int32).tobytes()),
-            "mat": ctx.buffer(mat_props.tobytes()),
+            "vao_blur": ctx.vertex_array(blur, []), "texels": texel_buf, "seg_in_ubo": bool(sizes["SEG_IN_UBO"]),
+            "seg": ctx.buffer(reserve=seg_bytes), "params": ctx.buffer(reserve=params_bytes),
             "sharp": sharp, "codes": codes, "fbo": ctx.framebuffer([sharp, codes]),
             "smeared": smeared, "fbo_blur": ctx.framebuffer([smeared]), "upload": upload,
             "hdri": None, "hdri_src": None, "sharp_src": None,
@@ -198,11 +221,14 @@ class GLRenderer(Renderer):
         seg[:, rt.P0:rt.P0 + 3] -= cam  # camera-relative, in float64, before the cast (see module docstring)
         seg[:, rt.P1:rt.P1 + 3] -= cam
         gl["seg"].write(seg.astype(np.float32).tobytes())
-        gl["lp"].write(self.lp.astype(np.float32).tobytes())
-        gl["lamp_mult"].write(self.lamp_mult.astype(np.float32).tobytes())
-        for name, binding in (("seg", 0), ("lp", 1), ("lamp_mult", 2), ("lamp_count", 3), ("texels", 4),
-                              ("levels", 5), ("mat", 6)):
-            gl[name].bind_to_storage_buffer(binding)
+        gl["params"].write(b"".join([_pad4(self.lp, np.float32), _pad4(self.lamp_mult.ravel(), np.float32),
+                                     *self._params_static]))
+        if gl["seg_in_ubo"]:
+            gl["seg"].bind_to_uniform_block(0)
+        else:
+            gl["seg"].bind_to_storage_buffer(0)
+        gl["params"].bind_to_uniform_block(1)
+        gl["texels"].bind_to_storage_buffer(4)
         prog = gl["prog"]
         K = self.K
         _set(prog, "n_seg", int(seg.shape[0]))

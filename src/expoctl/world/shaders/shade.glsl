@@ -1,13 +1,22 @@
 // Per-pixel shading: GLSL port of expoctl.world.shade (shade_pixel, render_kernel) and the texture helpers of
 // expoctl.world.raycast (_hash01, _bilinear, _sample, _box_cover, _dash_cover). float32.
 
-layout(std430, binding = 1) readonly buffer LpBuf { float lp[]; };
-layout(std430, binding = 2) readonly buffer LampMultBuf { float lamp_mult[]; };  // (n_tunnels, lamp_stride)
-layout(std430, binding = 3) readonly buffer LampCountBuf { int lamp_count[]; };
+// Small per-scene data in one uniform block (fast loads, see trace.glsl), vec4-packed (std140 arrays have a 16-byte
+// stride); sizes fixed per program (gl_renderer._programs).
+layout(std140, binding = 1) uniform Params {
+    vec4 lp4[LP_VEC4];            // lighting vector lp
+    vec4 lamp_mult4[LAMP_VEC4];   // (n_tunnels, lamp_stride) lamp multipliers
+    ivec4 lamp_count4[TUN_VEC4];
+    ivec4 tex_level4[LEVEL_VEC4]; // texture level offsets (M×L, texel units), then sizes (M×L)
+    vec4 mat4_[MAT_VEC4];         // albedo (N_MAT), then texture scales (N_MAT)
+};
+#define LP(k) lp4[(k) >> 2][(k) & 3]
+#define LAMP_MULT(k) lamp_mult4[(k) >> 2][(k) & 3]
+#define LAMP_COUNT(k) lamp_count4[(k) >> 2][(k) & 3]
+#define TEX_LEVEL(k) tex_level4[(k) >> 2][(k) & 3]
+#define MAT_PROP(k) mat4_[(k) >> 2][(k) & 3]
 // atlas texels, one RGBA8 word per texel (the flat uint8 RGB atlas repacked: one load per texel, not three)
 layout(std430, binding = 4) readonly buffer TexelBuf { uint texels[]; };
-layout(std430, binding = 5) readonly buffer TexLevelBuf { int tex_level[]; };  // offs (M×L, texel units), sizes (M×L)
-layout(std430, binding = 6) readonly buffer MatBuf { float mat_props[]; };     // albedo (N_MAT), scales (N_MAT)
 uniform int lamp_stride;
 uniform int n_lev;
 uniform sampler2D hdri;  // equirectangular RGB32F, row 0 = zenith; fetched texel by texel (same bilinear as numba)
@@ -39,7 +48,7 @@ void bilinear(int base, int n, float x, float y, inout vec3 acc, float weight) {
 // float32 precision; the level's texel wrap is periodic in the tile length, so only the cell index (for the hash
 // shift) needs the full value.
 vec3 sample_tex(int mat, float cell0, float a_local, float b_m, float footprint_m, float texel_m) {
-    int n0 = tex_level[N_MAT * n_lev + mat * n_lev];
+    int n0 = TEX_LEVEL(N_MAT * n_lev + mat * n_lev);
     float tile_m = float(n0) * texel_m;
     float fc = floor(a_local / tile_m);
     int cell = int(cell0 + fc);
@@ -52,15 +61,15 @@ vec3 sample_tex(int mat, float cell0, float a_local, float b_m, float footprint_
     int l1 = min(l0 + 1, n_lev - 1);
     vec3 acc = vec3(0.0);
     float s0 = float(1 << l0);
-    bilinear(tex_level[mat * n_lev + l0], tex_level[N_MAT * n_lev + mat * n_lev + l0],
+    bilinear(TEX_LEVEL(mat * n_lev + l0), TEX_LEVEL(N_MAT * n_lev + mat * n_lev + l0),
              a / (texel_m * s0), b_m / (texel_m * s0), acc, 1.0 - fr);
     if (fr > 0.0) {
         float s1 = float(1 << l1);
-        bilinear(tex_level[mat * n_lev + l1], tex_level[N_MAT * n_lev + mat * n_lev + l1],
+        bilinear(TEX_LEVEL(mat * n_lev + l1), TEX_LEVEL(N_MAT * n_lev + mat * n_lev + l1),
                  a / (texel_m * s1), b_m / (texel_m * s1), acc, fr);
     }
     // unpackUnorm gives v/255 already: × scale is the numba v · scale/255
-    return acc * mat_props[N_MAT + mat];
+    return acc * MAT_PROP(N_MAT + mat);
 }
 
 float box_cover(float x, float half_, float c, float half_w) {
@@ -79,10 +88,10 @@ float dash_cover(float x, float half_, float period, float on, float phase) {
 }
 
 vec3 sky(vec3 d) {
-    if (lp[LP_HDRI] > 0.5) {
+    if (LP(LP_HDRI) > 0.5) {
         ivec2 sz = textureSize(hdri, 0);
         int w = sz.x, h = sz.y;
-        float az = atan(d.y, d.x) + lp[LP_HDRI_AZ];
+        float az = atan(d.y, d.x) + LP(LP_HDRI_AZ);
         float el = asin(clamp(d.z, -1.0, 1.0));
         float x = fract(0.5 - az / (2.0 * PI)) * float(w) - 0.5;
         float y = (0.5 - el / PI) * float(h) - 0.5;
@@ -95,13 +104,13 @@ vec3 sky(vec3 d) {
         vec3 v = (texelFetch(hdri, ivec2(xa, y0), 0).rgb * (1.0 - ax) + texelFetch(hdri, ivec2(xb, y0), 0).rgb * ax)
                  * (1.0 - ay)
                  + (texelFetch(hdri, ivec2(xa, y1), 0).rgb * (1.0 - ax) + texelFetch(hdri, ivec2(xb, y1), 0).rgb * ax) * ay;
-        return lp[LP_HDRI_SCALE] * v;
+        return LP(LP_HDRI_SCALE) * v;
     }
     // CIE standard overcast sky; below the horizon the horizon value
-    float lum = lp[LP_LZ] * (1.0 + 2.0 * max(d.z, 0.0)) / 3.0;
-    vec3 out_ = lum * vec3(lp[LP_SKY_RGB], lp[LP_SKY_RGB + 1], lp[LP_SKY_RGB + 2]);
-    float cs = d.x * lp[0] + d.y * lp[1] + d.z * lp[2];
-    if (lp[LP_E_SUN] > 0.0 && cs > lp[LP_SUN_COS]) out_ += lp[LP_SUN_DISK_L];
+    float lum = LP(LP_LZ) * (1.0 + 2.0 * max(d.z, 0.0)) / 3.0;
+    vec3 out_ = lum * vec3(LP(LP_SKY_RGB), LP(LP_SKY_RGB + 1), LP(LP_SKY_RGB + 2));
+    float cs = d.x * LP(0) + d.y * LP(1) + d.z * LP(2);
+    if (LP(LP_E_SUN) > 0.0 && cs > LP(LP_SUN_COS)) out_ += LP(LP_SUN_DISK_L);
     return out_;
 }
 
@@ -114,21 +123,21 @@ float lamp_height(int j, float v) {
 
 float lamp_illuminance(int j, float x, vec3 p, vec3 n) {
     int tid = int(S(j, C_TUN_ID));
-    float spacing = lp[LP_LAMP_SPACING];
-    float area = lp[LP_LAMP_LEN] * lp[LP_LAMP_W];
-    float intensity = lp[LP_LAMP_L] * area;
+    float spacing = LP(LP_LAMP_SPACING);
+    float area = LP(LP_LAMP_LEN) * LP(LP_LAMP_W);
+    float intensity = LP(LP_LAMP_L) * area;
     int kc = int(floor((x - 0.5 * spacing) / spacing + 0.5));
-    int n_rows = int(lp[LP_N_ROWS]);
+    int n_rows = int(LP(LP_N_ROWS));
     float heights[4];
-    for (int r = 0; r < 4; ++r) heights[r] = r < n_rows ? lamp_height(j, lp[LP_ROWS + r]) : 0.0;
+    for (int r = 0; r < 4; ++r) heights[r] = r < n_rows ? lamp_height(j, LP(LP_ROWS + r)) : 0.0;
     float e = 0.0;
-    int count = lamp_count[tid];
+    int count = LAMP_COUNT(tid);
     for (int k = kc - 4; k < kc + 5; ++k) {
         if (k < 0 || k >= count) continue;
         float du = (0.5 * spacing + float(k) * spacing) - x;
-        float mult = lamp_mult[tid * lamp_stride + k];
+        float mult = LAMP_MULT(tid * lamp_stride + k);
         for (int r = 0; r < n_rows; ++r) {
-            float ddv = lp[LP_ROWS + r] - p.y;
+            float ddv = LP(LP_ROWS + r) - p.y;
             float ddw = heights[r] - p.z;
             float r2 = du * du + ddv * ddv + ddw * ddw;
             float rr = sqrt(r2);
@@ -142,8 +151,8 @@ float lamp_illuminance(int j, float x, vec3 p, vec3 n) {
 
 // coverage of white paint: solid edge lines, dashed lane dividers (3 m every 12 m); s = arc length mod 12 m
 float road_marking(float s, float v, float half_v, float half_s) {
-    int lanes = int(lp[LP_LANES]);
-    float lw = lp[LP_LANE_W];
+    int lanes = int(LP(LP_LANES));
+    float lw = LP(LP_LANE_W);
     float edge = float(lanes) * lw / 2.0;
     float cov = box_cover(v, half_v, -edge + 0.1, 0.075) + box_cover(v, half_v, edge - 0.1, 0.075);
     for (int k = 1; k < lanes; ++k) {
@@ -154,20 +163,20 @@ float road_marking(float s, float v, float half_v, float half_s) {
 }
 
 int lamp_index(int tid, float x, float spacing) {
-    return clamp(int(floor((x - 0.5 * spacing) / spacing + 0.5)), 0, lamp_count[tid] - 1);
+    return clamp(int(floor((x - 0.5 * spacing) / spacing + 0.5)), 0, LAMP_COUNT(tid) - 1);
 }
 
 // Luminance of one ray (o camera-relative, d unit); t, code and material through the out parameters.
 vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside, bool cull,
                  out float t_out, out int code_out, out int mat_out) {
-    Hit hit = trace(start_seg, start_inside, o, d, lp[LP_TMAX], lp[LP_ZTOP], cull);
+    Hit hit = trace(start_seg, start_inside, o, d, LP(LP_TMAX), LP(LP_ZTOP), cull);
     code_out = hit.code;
     if (hit.code == SKY) { t_out = INF; mat_out = MAT_SKY; return sky(d); }
-    float texel_m = lp[LP_TEXEL_M];
+    float texel_m = LP(LP_TEXEL_M);
     if (hit.code == FAR) {
-        float e = lp[LP_E_SKY] + lp[LP_E_SUN] * max(lp[2], 0.0);
+        float e = LP(LP_E_SKY) + LP(LP_E_SUN) * max(LP(2), 0.0);
         t_out = 1.0e4; mat_out = MAT_VERGE;
-        return vec3(mat_props[MAT_VERGE] * e / PI);
+        return vec3(MAT_PROP(MAT_VERGE) * e / PI);
     }
     int j = hit.j;
     float t = hit.t;
@@ -177,13 +186,13 @@ vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside
     int code = hit.code;
     int mat = hit.mat;
     bool interior = S(j, C_KIND) == KIND_TUNNEL && (code == GROUND || code == TWALL || code == TCEIL);
-    float road_half = lp[LP_ROAD_HALF];
+    float road_half = LP(LP_ROAD_HALF);
     // along-route texture coordinate as (cell0, metres past it): s_hit = S0 + u, or v + 37·S0 on faces
     float cell0 = S(j, C_SCELL), a = S(j, C_SREM) + u, b = v;
     if (code == GROUND) {
         float av = abs(v);
         if (av < road_half) mat = MAT_ROAD;
-        else if (interior || av < road_half + lp[LP_SIDEWALK]) mat = MAT_SIDEWALK;
+        else if (interior || av < road_half + LP(LP_SIDEWALK)) mat = MAT_SIDEWALK;
         else mat = MAT_VERGE;
     } else if (code == SIDE || code == TWALL) {
         b = w;
@@ -196,8 +205,8 @@ vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside
     float cos_i = abs(dot(nw_, d));
     float foot_across = t * pix_rad;
     float foot = foot_across / sqrt(max(cos_i, 0.02));
-    vec3 tex = sample_tex(mat, cell0, a, b, foot * lp[LP_MIP_BIAS], texel_m);
-    float alb = mat_props[mat];
+    vec3 tex = sample_tex(mat, cell0, a, b, foot * LP(LP_MIP_BIAS), texel_m);
+    float alb = MAT_PROP(mat);
     if (mat == MAT_ROAD) {
         float paint = road_marking(S(j, C_S12) + u, v, max(0.5 * foot, 1e-4), max(0.5 * foot_across / max(cos_i, 0.02), 1e-4));
         tex = (1.0 - paint) * tex * alb + paint * 0.6;
@@ -206,42 +215,42 @@ vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside
     }
     // illumination
     float e_day = 0.0, e_lamp = 0.0;
-    vec3 sun = vec3(lp[0], lp[1], lp[2]);
-    float e_sun = lp[LP_E_SUN];
+    vec3 sun = vec3(LP(0), LP(1), LP(2));
+    float e_sun = LP(LP_E_SUN);
     float cos_sun = dot(nw_, sun);
     if (e_sun > 0.0 && cos_sun > 0.0 && sun.z > 0.0) {
         vec3 ps = o + t * d + 0.02 * nw_;
-        Hit sh = trace(hit.air, hit.air_in, ps, sun, lp[LP_TMAX], lp[LP_ZTOP], cull);
+        Hit sh = trace(hit.air, hit.air_in, ps, sun, LP(LP_TMAX), LP(LP_ZTOP), cull);
         if (sh.code == SKY) e_day += e_sun * cos_sun;
     }
     float x = S(j, C_TX0) + u;  // distance into the tunnel (only used on tunnel segments)
     if (!interior) {
-        e_day += lp[LP_E_SKY] * 0.5 * (1.0 + nw_.z);
+        e_day += LP(LP_E_SKY) * 0.5 * (1.0 + nw_.z);
     } else {
         float tl = S(j, C_TUN_LEN);
-        float tail = lp[LP_TAIL_M];
-        float e_glob = lp[LP_E_SKY] + e_sun * max(sun.z, 0.0);
-        e_day += lp[LP_TAIL_FRAC] * e_glob * (exp(-3.0 * x / tail) + exp(-3.0 * (tl - x) / tail));
+        float tail = LP(LP_TAIL_M);
+        float e_glob = LP(LP_E_SKY) + e_sun * max(sun.z, 0.0);
+        e_day += LP(LP_TAIL_FRAC) * e_glob * (exp(-3.0 * x / tail) + exp(-3.0 * (tl - x) / tail));
         e_lamp += lamp_illuminance(j, x, hit.p, nl);
         int tid = int(S(j, C_TUN_ID));
-        int kc = lamp_index(tid, x, lp[LP_LAMP_SPACING]);
-        e_lamp += lp[LP_INTERREFL] * lp[LP_E_LAMP_NOM] * lamp_mult[tid * lamp_stride + kc];
+        int kc = lamp_index(tid, x, LP(LP_LAMP_SPACING));
+        e_lamp += LP(LP_INTERREFL) * LP(LP_E_LAMP_NOM) * LAMP_MULT(tid * lamp_stride + kc);
     }
-    vec3 lamp_rgb = vec3(lp[LP_LAMP_RGB], lp[LP_LAMP_RGB + 1], lp[LP_LAMP_RGB + 2]);
+    vec3 lamp_rgb = vec3(LP(LP_LAMP_RGB), LP(LP_LAMP_RGB + 1), LP(LP_LAMP_RGB + 2));
     vec3 out_ = tex * (e_day + e_lamp * lamp_rgb) / PI;
     if (code == TCEIL) {
         // emissive lamp panels, box-filtered over the pixel footprint
-        float spacing = lp[LP_LAMP_SPACING];
+        float spacing = LP(LP_LAMP_SPACING);
         float half_ = max(0.5 * foot, 1e-4);
-        float along = dash_cover(x, half_, spacing, lp[LP_LAMP_LEN], 0.5 * spacing - 0.5 * lp[LP_LAMP_LEN]);
+        float along = dash_cover(x, half_, spacing, LP(LP_LAMP_LEN), 0.5 * spacing - 0.5 * LP(LP_LAMP_LEN));
         if (x < 0.0 || x > S(j, C_TUN_LEN)) along = 0.0;
         if (along > 0.0) {
             float cov = 0.0;
-            for (int r = 0; r < int(lp[LP_N_ROWS]); ++r) cov += box_cover(v, half_, lp[LP_ROWS + r], 0.5 * lp[LP_LAMP_W]);
+            for (int r = 0; r < int(LP(LP_N_ROWS)); ++r) cov += box_cover(v, half_, LP(LP_ROWS + r), 0.5 * LP(LP_LAMP_W));
             cov = min(cov * along, 1.0);
             if (cov > 0.0) {
                 int tid = int(S(j, C_TUN_ID));
-                float le = lp[LP_LAMP_L] * lamp_mult[tid * lamp_stride + lamp_index(tid, x, spacing)];
+                float le = LP(LP_LAMP_L) * LAMP_MULT(tid * lamp_stride + lamp_index(tid, x, spacing));
                 out_ = (1.0 - cov) * out_ + cov * le * lamp_rgb;
                 if (cov > 0.5) mat = MAT_LAMP;
             }
