@@ -1,0 +1,164 @@
+"""GL backend (gl_renderer.GLRenderer) vs the numba ray caster: same algorithm in float32 GLSL, so the images agree to
+float32 rounding. Tolerances (measured at 160×120 on these 9 poses × 2 cities, Mesa llvmpipe; ~10× room):
+- code and material agree on ≥ 99.5 % of pixels (measured 100 %; a float32 rounding can flip only a silhouette pixel);
+- luminance, relative per channel on agreeing pixels: median < 1e-5 (measured ≤ 1.3e-6), p99 < 5e-4 (measured
+  ≤ 4.2e-5: texture coordinates and lamp geometry rounded at float32), max < 0.1 (measured 1.7e-2: a pixel whose
+  footprint sits on a mip-level or texel boundary moves by one rounding step of the level/texel choice);
+- depth relative error < 1e-4 (measured ≤ 4.9e-6; float32 ε is 6e-8, a few operations deep along a ≤ 400 m walk);
+- motion blur (fast and reference), relative: median < 1e-5, p99 < 5e-4 (measured ≤ 4.8e-7 and ≤ 6.9e-6)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from expoctl.errors import ConfigError
+from expoctl.world import Renderer, load_city, validate_render_config
+from expoctl.world import gl_renderer
+from expoctl.world import route as rt
+from expoctl.world.raycast import FACE, PROP, SIDE, SKY, TCEIL, TWALL
+from expoctl.world.shade import MAT_LAMP
+
+W, H = 160, 120
+UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)  # camera rotations applied to a lane pose
+LEFT = np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]], float)
+BACK = np.array([[-1, 0, 0], [0, 1, 0], [0, 0, -1]], float)
+
+
+@pytest.fixture(scope="module")
+def gl_ok():
+    try:
+        gl_renderer.gl_context()
+    except ConfigError as exc:
+        pytest.skip(f"no headless EGL OpenGL 4.5 context: {exc}")
+
+
+def _poses(city):
+    """Open road, approach, at the portal, just inside, deep inside looking at the exit, and turned views."""
+    t = city.cfg["tunnels"][0]
+    start, length = float(t["start_m"]), float(t["length_m"])
+    poses = [city.pose_at_s(s, 0.0) for s in (250.0, start - 20.0, start - 0.5, start + 2.0, start + length - 25.0)]
+    for s, m in ((250.0, LEFT), (start + 30.0, UP), (start - 3.0, BACK), (330.0, LEFT)):
+        p = city.pose_at_s(s, 0.0)
+        p[:3, :3] = p[:3, :3] @ m
+        poses.append(p)
+    return poses
+
+
+@pytest.fixture(scope="module", params=["train", "test"])
+def scene(request, gl_ok):
+    """Sunny traversal (shadow rays); the test city has a curved arch tunnel."""
+    city = load_city(request.param)
+    traj = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if not t.conditions.overcast)
+    return (city, traj, Renderer(city, W, H, 70.0, conditions=traj.conditions),
+            gl_renderer.GLRenderer(city, W, H, 70.0, conditions=traj.conditions))
+
+
+def _rel(a, b):
+    return np.abs(b.astype(np.float64) - a) / np.maximum(np.abs(a.astype(np.float64)), 1e-6)
+
+
+def _compare(ref, out):
+    agree = (ref["code"] == out["code"]) & (ref["material"] == out["material"])
+    assert agree.mean() >= 0.995
+    rel = _rel(ref["luminance"], out["luminance"]).max(axis=2)[agree]
+    assert np.median(rel) < 1e-5 and np.percentile(rel, 99) < 5e-4 and rel.max() < 0.1
+    np.testing.assert_array_equal(np.isinf(ref["depth"])[agree], np.isinf(out["depth"])[agree])
+    fin = agree & np.isfinite(ref["depth"])
+    assert _rel(ref["depth"][fin], out["depth"][fin]).max() < 1e-4
+    return agree
+
+
+def test_render_full_matches_numba(scene):
+    city, _, ref_r, gl_r = scene
+    codes, mats = set(), set()
+    for pose in _poses(city):
+        ref, out = ref_r.render_full(pose, glare=False), gl_r.render_full(pose, glare=False)
+        for key, dtype in (("luminance", np.float32), ("depth", np.float32), ("code", np.uint8), ("material", np.uint8)):
+            assert out[key].dtype == dtype and out[key].shape == ref[key].shape and out[key].flags.c_contiguous
+        _compare(ref, out)
+        codes |= set(np.unique(ref["code"]).tolist())
+        mats |= set(np.unique(ref["material"]).tolist())
+    # the poses exercise sky, roadside blocks, props, portal faces, tunnel walls/ceiling and the lamp panels
+    assert {SKY, SIDE, PROP, FACE, TWALL, TCEIL} <= codes and MAT_LAMP in mats
+
+
+def test_glare_and_render_are_the_base_class(scene):
+    city, _, ref_r, gl_r = scene
+    pose = city.pose_at_s(250.0, 0.0)
+    lum, depth = gl_r.render(pose)
+    sharp = gl_r.render_full(pose, glare=False)["luminance"]
+    np.testing.assert_array_equal(lum, ref_r.apply_glare(sharp))  # CPU glare on the GL image, as in the base class
+    assert np.isinf(depth).any() and np.isfinite(depth).any()
+
+
+@pytest.mark.parametrize("method", ["fast", "reference"])
+def test_motion_blur_matches_numba(scene, method):
+    """Fast path: the GL smear pass vs _blur_kernel on each backend's own sharp render; reference: sub-frame average
+    (max_subframes 6 keeps it quick). Same bounds as the sharp renders (the smear is a float32 weighted mean)."""
+    _, traj, ref_r, gl_r = scene
+    for r in (ref_r, gl_r):
+        r._cache.clear()
+        r.max_subframes = 6
+    frame = 20  # mid-window: at speed, so the flow is several pixels
+    ref = ref_r.render_exposure(traj, frame, 20000.0, method=method)
+    out = gl_r.render_exposure(traj, frame, 20000.0, method=method)
+    rel = _rel(ref, out).max(axis=2)
+    assert np.median(rel) < 1e-5 and np.percentile(rel, 99) < 5e-4
+    # and the smear really blurred: differs from the sharp mid-exposure render
+    sharp = gl_r.apply_glare(gl_r.render_full(traj.pose_at(traj.timestamps_ns[frame] * 1e-9 + 0.01), glare=False)
+                             ["luminance"])
+    assert np.median(_rel(sharp, out)) > 1e-3
+
+
+def test_fast_blur_of_a_render_not_on_the_gpu(scene):
+    """A cached sharp render that another render has replaced on the GPU is uploaded again: same result."""
+    city, traj, _, gl_r = scene
+    gl_r._cache.clear()
+    a = gl_r.render_exposure(traj, 10, 20000.0)
+    gl_r.render_full(city.pose_at_s(250.0, 0.0))  # overwrites the GPU copy of frame 10's sharp render
+    b = gl_r.render_exposure(traj, 10, 20000.0)  # cached render, uploaded
+    np.testing.assert_array_equal(a, b)
+
+
+def test_shader_segments_keep_arc_length_exactly():
+    """The shader gets S0 as (tile cell, metres past it) and S0 mod 12 m; both reassemble S0 in float64."""
+    city = load_city("train")
+    texel_m, tile_px = float(city.cfg["textures"]["texel_m"]), int(city.cfg["textures"]["tile_px"])
+    seg = gl_renderer.shader_segments(city.segments, texel_m, tile_px)
+    tile_m = tile_px * texel_m
+    s0 = city.segments[:, rt.S0]
+    np.testing.assert_allclose(seg[:, gl_renderer._C_SCELL] * tile_m + seg[:, gl_renderer._C_SREM], s0, atol=1e-9)
+    assert np.all((seg[:, gl_renderer._C_SREM] >= 0) & (seg[:, gl_renderer._C_SREM] < tile_m))
+    assert np.all(seg[:, gl_renderer._C_S12] < 12.0) and gl_renderer.SEG_STRIDE % 4 == 0
+
+
+def test_backend_config(gl_ok):
+    city = load_city("train")
+    r = Renderer.from_config(city, {"width": 32, "height": 24, "backend": "egl"})
+    assert isinstance(r, gl_renderer.GLRenderer) and r.width == 32
+    assert type(Renderer.from_config(city, {"width": 32, "height": 24, "backend": "numba"})) is Renderer
+    assert type(Renderer.from_config(city, {"width": 32, "height": 24})) is Renderer  # default stays numba
+
+
+def test_bad_backend_name_names_the_key():
+    with pytest.raises(ConfigError, match=r"world\.render\.backend"):
+        validate_render_config({"backend": "vulkan"})
+    with pytest.raises(ConfigError, match=r"world\.render\.backend"):
+        Renderer.from_config(load_city("train"), {"backend": "opengl"})
+
+
+def test_no_egl_context_is_a_config_error(monkeypatch):
+    import moderngl
+
+    def fail(**kwargs):
+        raise RuntimeError("libEGL.so: cannot open shared object file")
+
+    monkeypatch.setattr(gl_renderer, "_CTX", None)
+    monkeypatch.setattr(moderngl, "create_standalone_context", fail)
+    with pytest.raises(ConfigError, match=r"world\.render\.backend.*libEGL"):
+        gl_renderer.gl_context()
+    r = Renderer.from_config(load_city("train"), {"width": 32, "height": 24, "backend": "egl"})
+    with pytest.raises(ConfigError, match=r"world\.render\.backend"):  # the context is created on first render
+        r.render_full(r.city.pose_at_s(250.0, 0.0))
+    assert math.isfinite(r.lp[0])
