@@ -1,8 +1,14 @@
 """Simulator speed: render (+ motion blur) (+ sensor, when expoctl.camera.sensor exists) frames/s per camera, and memory.
 
 Usage: .venv/bin/python benchmarks/simulator_speed.py [--frames 12] [--width 640] [--height 480] [--threads 0]
-                                                    [--baseline OLD_SRC]
+                                                    [--baseline OLD_SRC] [--backend numba|egl|both]
+                                                    [--sizes 640x480,320x240] [--lp-threads N]
 Prints a table of medians over frames and writes benchmarks/results/simulator_speed.json.
+--backend egl: the same table for the OpenGL backend (gl_renderer.GLRenderer on headless EGL).
+--backend both: time numba and egl alternating on the same frames, at each of --sizes, stage by stage (sharp render,
++ 5 ms fast blur, + glare, + sensor), with egl/numba ratios and frames/s per camera; writes
+benchmarks/results/simulator_speed_backends.json (--backend egl writes simulator_speed_egl.json).
+--lp-threads: LP_NUM_THREADS for Mesa llvmpipe (set before the GL context exists; default: llvmpipe's own).
 --baseline OLD_SRC: also time another version of the code (a `src` directory, e.g. from
 `git archive <commit> src | tar -x -C /tmp/old` → /tmp/old/src) on the same frames, alternating with the current code
 frame by frame, and report both medians, their ratio and whether the images are identical: on a shared machine only
@@ -77,6 +83,97 @@ def _time_render(renderer, traj, k):
     return sharp, sharp_cpu, time.perf_counter() - t, lum
 
 
+STAGES = ("render_sharp", "smear_5ms", "glare", "sensor")
+CUMULATIVE = (("sharp render", 1), ("+ 5 ms fast blur", 2), ("+ glare", 3), ("+ sensor", 4))
+
+
+def _time_stages(r, traj, k, sensor, rng):
+    """Per stage wall seconds for one camera-frame at 5 ms exposure: the stages of Renderer.render_exposure's fast
+    path (sharp render at mid-exposure, smear, glare), then the sensor; plus the sharp image for a cross-check."""
+    t0 = float(traj.timestamps_ns[k]) * 1e-9
+    dur = 5000.0e-6
+    ref = traj.pose_at(t0 + 0.5 * dur)
+    out = []
+    t = time.perf_counter()
+    sharp = dict(r.render_full(ref, glare=False), pose=ref)
+    out.append(time.perf_counter() - t)
+    t = time.perf_counter()
+    smeared, max_shift = r._smear(sharp, traj.pose_at(t0), traj.pose_at(t0 + dur))
+    out.append(time.perf_counter() - t)
+    t = time.perf_counter()
+    lum = r.apply_glare(smeared if max_shift >= 0.5 else sharp["luminance"])
+    out.append(time.perf_counter() - t)
+    if sensor is not None:
+        t = time.perf_counter()
+        sensor.capture(lum, 5000.0, 6.0, rng)
+        out.append(time.perf_counter() - t)
+    return out, sharp
+
+
+def compare_backends(args) -> int:
+    """numba vs egl on the same frames, alternating which goes first, at each size; medians and egl/numba ratios."""
+    from expoctl.world.gl_renderer import GLRenderer
+
+    city = load_city(args.city)
+    traj = city.traversal(0, None, fps=15.0, seed=0)
+    frames = np.linspace(1, len(traj.poses) - 2, args.frames).astype(int)
+    result = {"city": args.city, "frames": int(len(frames)), "numba_threads": numba.get_num_threads(),
+              "lp_num_threads": os.environ.get("LP_NUM_THREADS"), "cpu_count": os.cpu_count(),
+              "load_average_1min_start": os.getloadavg()[0], "python": platform.python_version(), "sizes": {}}
+    for size in args.sizes.split(","):
+        w, h = (int(v) for v in size.lower().split("x"))
+        rend = {"numba": Renderer(city, w, h, 70.0, conditions=traj.conditions),
+                "egl": GLRenderer(city, w, h, 70.0, conditions=traj.conditions)}
+        for r in rend.values():  # JIT compile / shader compile + atlas upload outside the timings
+            _time_stages(r, traj, int(frames[0]), None, None)
+        sensor, note = _sensor(w, h)
+        rng = np.random.default_rng(0)
+        if sensor is not None:  # compile outside the timings
+            sensor.capture(np.ones((h, w, 3), np.float32), 5000.0, 6.0, rng)
+        times = {name: [] for name in rend}
+        agree = []
+        for i, k in enumerate(frames):
+            order = list(rend) if i % 2 == 0 else list(rend)[::-1]
+            sharp = {}
+            for name in order:
+                t, sharp[name] = _time_stages(rend[name], traj, int(k), sensor, rng)
+                times[name].append(t)
+            agree.append(float(np.mean(sharp["numba"]["code"] == sharp["egl"]["code"])))
+        entry = {"sensor_note": note, "code_agreement_min": round(min(agree), 5)}
+        for name, v in times.items():
+            v = np.array(v)  # (frames, stages)
+            cum = np.cumsum(v, axis=1)
+            entry[name] = {
+                "stage_median_ms": {s: round(1e3 * float(np.median(v[:, j])), 2) for j, s in enumerate(STAGES[:v.shape[1]])},
+                "cumulative_median_ms": {lab: round(1e3 * float(np.median(cum[:, n - 1])), 2)
+                                         for lab, n in CUMULATIVE if n <= v.shape[1]},
+            }
+            entry[name]["frames_per_s"] = {lab: round(1e3 / ms, 2) for lab, ms in entry[name]["cumulative_median_ms"].items()}
+        entry["ratio_egl_over_numba"] = {lab: round(entry["egl"]["cumulative_median_ms"][lab]
+                                                    / entry["numba"]["cumulative_median_ms"][lab], 3)
+                                         for lab in entry["egl"]["cumulative_median_ms"]}
+        result["sizes"][f"{w}x{h}"] = entry
+        print(f"\n{w}x{h}, city {args.city}, {len(frames)} frames alternating, numba {numba.get_num_threads()} threads, "
+              f"LP_NUM_THREADS={os.environ.get('LP_NUM_THREADS', 'default')}, load avg {os.getloadavg()[0]:.1f}"
+              + (f"; sensor: {note}" if note else ""))
+        print(f"{'per camera-frame (median)':26s} {'numba ms':>9s} {'egl ms':>9s} {'egl/numba':>9s} "
+              f"{'numba f/s':>9s} {'egl f/s':>9s}")
+        for lab in entry["egl"]["cumulative_median_ms"]:
+            a, b = entry["numba"]["cumulative_median_ms"][lab], entry["egl"]["cumulative_median_ms"][lab]
+            print(f"{lab:26s} {a:9.1f} {b:9.1f} {entry['ratio_egl_over_numba'][lab]:9.2f} "
+                  f"{entry['numba']['frames_per_s'][lab]:9.1f} {entry['egl']['frames_per_s'][lab]:9.1f}")
+        print("stage medians ms: " + "; ".join(f"{n} " + ", ".join(f"{s} {v}" for s, v in entry[n]["stage_median_ms"].items())
+                                          for n in rend))
+        print(f"code maps agree on >= {100 * entry['code_agreement_min']:.2f} % of pixels on every frame")
+    result["max_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+    result["load_average_1min_end"] = os.getloadavg()[0]
+    print(f"\nmax RSS {result['max_rss_mb']} MB (both backends in one process; llvmpipe's buffers are host memory)")
+    out = ROOT / "benchmarks" / "results" / "simulator_speed_backends.json"
+    write_json(result, out)
+    print(f"wrote {out.relative_to(ROOT)}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=12)
@@ -85,16 +182,28 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=0, help="numba threads (0 = numba default)")
     ap.add_argument("--city", default="train")
     ap.add_argument("--baseline", default=None, help="another version's src dir to time alongside (see docstring)")
+    ap.add_argument("--backend", choices=("numba", "egl", "both"), default="numba")
+    ap.add_argument("--sizes", default="640x480,320x240", help="--backend both: image sizes WxH, comma-separated")
+    ap.add_argument("--lp-threads", type=int, default=0, help="LP_NUM_THREADS for llvmpipe (0 = its default)")
     args = ap.parse_args()
     if args.threads:
         numba.set_num_threads(args.threads)
+    if args.lp_threads:
+        os.environ["LP_NUM_THREADS"] = str(args.lp_threads)  # read by llvmpipe when the context is created
+    if args.backend == "both":
+        return compare_backends(args)
+    if args.backend == "egl":
+        from expoctl.world.gl_renderer import GLRenderer
+        cls = GLRenderer
+    else:
+        cls = Renderer
 
     tracemalloc.start()
     t_setup = time.perf_counter()
     city = load_city(args.city)
     traj = city.traversal(0, None, fps=15.0, seed=0)
-    renderer = Renderer(city, args.width, args.height, 70.0, conditions=traj.conditions)
-    shared = Renderer(city, args.width, args.height, 70.0, conditions=traj.conditions, share_render=True)
+    renderer = cls(city, args.width, args.height, 70.0, conditions=traj.conditions)
+    shared = cls(city, args.width, args.height, 70.0, conditions=traj.conditions, share_render=True)
     renderer.render_full(traj.poses[0])  # JIT compile / load cache outside the timings
     shared.render_exposure(traj, 0, 5000.0)
     setup_s = time.perf_counter() - t_setup
@@ -154,7 +263,8 @@ def main() -> int:
                              "speedup": round(float(med["old"][j] / med["new"][j]), 2)}
 
     result = {
-        "city": args.city, "width": args.width, "height": args.height, "frames": int(len(frames)),
+        "city": args.city, "backend": args.backend, "width": args.width, "height": args.height,
+        "frames": int(len(frames)), "lp_num_threads": os.environ.get("LP_NUM_THREADS"),
         "numba_threads": numba.get_num_threads(), "cpu_count": os.cpu_count(),
         "load_average_1min": os.getloadavg()[0], "python": platform.python_version(),
         "setup_s": round(setup_s, 2), "sensor_note": sensor_note,
@@ -165,7 +275,7 @@ def main() -> int:
     }
     if baseline is not None:
         result["baseline"] = baseline
-    print(f"simulator speed, {args.width}x{args.height}, city {args.city}, {len(frames)} frames, "
+    print(f"simulator speed ({args.backend}), {args.width}x{args.height}, city {args.city}, {len(frames)} frames, "
           f"{result['numba_threads']} numba threads, load avg {result['load_average_1min']:.1f}")
     print(f"{'stage (per camera-frame)':28s} {'median ms':>10s} {'frames/s':>9s}")
     for k in rows:
@@ -182,7 +292,7 @@ def main() -> int:
             b = baseline[key]
             print(f"  {key:26s} old {b['old_ms']:8.1f} ms  new {b['new_ms']:8.1f} ms  speed-up {b['speedup']:.2f}x")
     print(f"peak python allocations {result['peak_python_alloc_mb']} MB, max RSS {result['max_rss_mb']} MB")
-    out = ROOT / "benchmarks" / "results" / "simulator_speed.json"
+    out = ROOT / "benchmarks" / "results" / ("simulator_speed_egl.json" if args.backend == "egl" else "simulator_speed.json")
     write_json(result, out)
     print(f"wrote {out.relative_to(ROOT)}")
     return 0

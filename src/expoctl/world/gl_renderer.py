@@ -37,9 +37,12 @@ EPS_DIR = 1.0e-12
 # as much as before and never rejects a hit of the exact test.
 CULL_MARGIN_M = 1.0e-3
 
-# extra per-segment columns appended to the route table for the shader (all computed in float64 on the CPU)
-_C_SCELL, _C_SREM, _C_FCELL, _C_FREM, _C_S12, _C_TX0 = range(rt.NCOL, rt.NCOL + 6)
-SEG_STRIDE = (rt.NCOL + 6 + 3) // 4 * 4  # whole vec4s per segment (uniform-block layout, shaders/trace.glsl)
+# extra per-segment columns appended to the route table for the shader (all computed in float64 on the CPU):
+# arc-length splits (per city), and per frame the camera's local coordinates O0 (3) and the mitre-plane offsets
+# NE·P1, NS·P0 relative to the camera
+_C_SCELL, _C_SREM, _C_FCELL, _C_FREM, _C_S12, _C_TX0, _C_O0, _C_NE_D, _C_NS_D = (
+    rt.NCOL, rt.NCOL + 1, rt.NCOL + 2, rt.NCOL + 3, rt.NCOL + 4, rt.NCOL + 5, rt.NCOL + 6, rt.NCOL + 9, rt.NCOL + 10)
+SEG_STRIDE = (rt.NCOL + 11 + 3) // 4 * 4  # whole vec4s per segment (uniform-block layout, shaders/trace.glsl)
 
 _CTX = None  # one GL context per process, created on first use
 _PROGRAMS: dict = {}
@@ -67,6 +70,7 @@ def _header() -> str:
                                                 "L_H", "L_MAT", "R_OFF", "R_H", "R_MAT", "VMAX", "BOX0",
                                                 "BOX_STRIDE", "N_BOXES")}
     ints.update(C_SCELL=_C_SCELL, C_SREM=_C_SREM, C_FCELL=_C_FCELL, C_FREM=_C_FREM, C_S12=_C_S12, C_TX0=_C_TX0,
+                C_O0=_C_O0, C_NE_D=_C_NE_D, C_NS_D=_C_NS_D,
                 SEG_STRIDE=SEG_STRIDE, MAT_SKY=shade.MAT_SKY, MAT_LAMP=shade.MAT_LAMP)
     for name in dir(rc):
         if name.startswith(("LP_", "MAT_")) or name in ("SKY", "GROUND", "SIDE", "ROOF", "TWALL", "TCEIL", "FACE",
@@ -220,6 +224,11 @@ class GLRenderer(Renderer):
         cam = pose[:3, 3]
         seg[:, rt.P0:rt.P0 + 3] -= cam  # camera-relative, in float64, before the cast (see module docstring)
         seg[:, rt.P1:rt.P1 + 3] -= cam
+        p0, p1 = seg[:, rt.P0:rt.P0 + 3], seg[:, rt.P1:rt.P1 + 3]
+        for k, col in enumerate((rt.F, rt.R, rt.U)):
+            seg[:, _C_O0 + k] = -np.einsum("ij,ij->i", seg[:, col:col + 3], p0)
+        seg[:, _C_NE_D] = np.einsum("ij,ij->i", seg[:, rt.NE:rt.NE + 3], p1)
+        seg[:, _C_NS_D] = np.einsum("ij,ij->i", seg[:, rt.NS:rt.NS + 3], p0)
         gl["seg"].write(seg.astype(np.float32).tobytes())
         gl["params"].write(b"".join([_pad4(self.lp, np.float32), _pad4(self.lamp_mult.ravel(), np.float32),
                                      *self._params_static]))
