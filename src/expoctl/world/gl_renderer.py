@@ -184,8 +184,11 @@ class GLRenderer(Renderer):
         codes = ctx.texture((w, h), 2, dtype="u1")
         smeared = ctx.texture((w, h), 4, dtype="f4")
         upload = ctx.texture((w, h), 4, dtype="f4")
-        for t in (sharp, codes, smeared, upload):
+        for t in (codes, smeared):
             t.filter = (ctx.NEAREST, ctx.NEAREST)
+        for t in (sharp, upload):  # the blur pass samples them bilinearly
+            t.filter = (ctx.LINEAR, ctx.LINEAR)
+            t.repeat_x = t.repeat_y = False
         levels = np.concatenate([(self.offs // 3).ravel(), self.sizes.ravel()])
         mat_props = np.concatenate([self.albedo, self.scales])
         # the Params block's constant arrays (offsets in 16-byte vec4 units); lp and lamp_mult change per conditions
