@@ -4,8 +4,9 @@ Usage: .venv/bin/python benchmarks/sensor_speed.py [--repeats 25] [--width 640] 
        [--warm-numba-cache] [--src OTHER_SRC]
 Prints a table and writes benchmarks/results/sensor_speed.json. Target: ≤ ~20 ms per frame.
 
-Threads: numba's kernels run on `--threads` threads (default 2, this machine's cores; BLAS/OpenMP pinned to 1); the
-frame's random draws (numpy, one stream) stay on one thread. `--threads 1` gives the one-core figure. `--src` times
+Threads: `--threads` numba threads (default 2; BLAS/OpenMP pinned to 1). The sensor's kernels are serial: a
+block-parallel version (bit-identical) was 1.3–1.5× faster on an idle machine but 3× slower while the other core was busy
+(commit 0bcd611, measured with `--src`), which is how the pipeline runs it, so it was reverted. `--src` times
 another checkout's src/ (e.g. `git archive HEAD~1 src | tar -x -C /tmp/old`, then `--src /tmp/old/src`), to compare
 versions back to back on the same machine state.
 Scenes are a fixed log-normal texture (σ = 1 in ln L, i.e. ~±1.4 stops) scaled so that, at 5 ms and 6 dB, the median

@@ -248,66 +248,37 @@ def _pixel_dn(lum, gain, dark, z, z_small, j, scale, exact_below, read_noise, fu
     return min(max(dn, np.float32(0.0)), adc_max), j
 
 
-# The frame is processed in row blocks on numba's threads. Exact-Poisson pixels consume the uniforms z_small in
-# raster order, so a first parallel pass counts them per block and an exclusive prefix sum gives each block its start
-# in z_small: the output is identical to a serial raster-order loop over the same draws (tests/camera/test_sensor.py).
-_BLOCK = 4096  # pixel-channels per block: enough work per task, many blocks for load balance
-
-
-@numba.njit(cache=True, parallel=True)
-def _small_counts(lum, gain_map, dark_map, scale, exact_below):
-    """Per block of `_BLOCK` pixel-channels: how many take the exact-Poisson branch."""
+@numba.njit(cache=True)
+def _count_small(lum, gain_map, dark_map, scale, exact_below):
     fl, fg, fd = lum.ravel(), gain_map.ravel(), dark_map.ravel()
-    nb = (fl.size + _BLOCK - 1) // _BLOCK
-    counts = np.zeros(nb, np.int64)
-    for b in numba.prange(nb):
-        n = 0
-        for i in range(b * _BLOCK, min((b + 1) * _BLOCK, fl.size)):
-            if max(fl[i] * scale * fg[i] + fd[i], np.float32(0.0)) < exact_below:
-                n += 1
-        counts[b] = n
-    return counts
+    n = 0
+    for i in range(fl.size):
+        if max(fl[i] * scale * fg[i] + fd[i], np.float32(0.0)) < exact_below:
+            n += 1
+    return n
 
 
-def _count_small(lum, gain_map, dark_map, scale, exact_below) -> int:
-    return int(_small_counts(lum, gain_map, dark_map, scale, exact_below).sum())
-
-
-@numba.njit(cache=True, inline="always")
-def _block_starts(counts):
-    starts = np.empty(counts.size, np.int64)
-    acc = 0
-    for b in range(counts.size):
-        starts[b] = acc
-        acc += counts[b]
-    return starts
-
-
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _raw_kernel(lum, gain_map, dark_map, z, z_small, scale, exact_below, read_noise, full_well, k, black, adc_max):
     out = np.empty(lum.shape, np.float32)
     fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
-    starts = _block_starts(_small_counts(lum, gain_map, dark_map, scale, exact_below))
-    for b in numba.prange(starts.size):
-        j = starts[b]
-        for i in range(b * _BLOCK, min((b + 1) * _BLOCK, fl.size)):
-            fo[i], j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well,
-                                 k, black, adc_max)
+    j = 0
+    for i in range(fl.size):
+        fo[i], j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
+                             black, adc_max)
     return out
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _capture_kernel(lum, gain_map, dark_map, z, z_small, scale, exact_below, read_noise, full_well, k, black,
                     adc_max, lut):
     out = np.empty(lum.shape, np.uint8)
     fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
-    starts = _block_starts(_small_counts(lum, gain_map, dark_map, scale, exact_below))
-    for b in numba.prange(starts.size):
-        j = starts[b]
-        for i in range(b * _BLOCK, min((b + 1) * _BLOCK, fl.size)):
-            dn, j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
-                              black, adc_max)
-            fo[i] = lut[np.int32(dn)]
+    j = 0
+    for i in range(fl.size):
+        dn, j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
+                          black, adc_max)
+        fo[i] = lut[np.int32(dn)]
     return out
 
 
