@@ -162,3 +162,21 @@ def test_no_egl_context_is_a_config_error(monkeypatch):
     with pytest.raises(ConfigError, match=r"world\.render\.backend"):  # the context is created on first render
         r.render_full(r.city.pose_at_s(250.0, 0.0))
     assert math.isfinite(r.lp[0])
+
+
+
+def test_spawned_worker_renders_the_same(scene):
+    """The project's process pools spawn workers (rig.collect, evaluate): a pickled GLRenderer carries no GL objects
+    and makes its own context in the worker, with the same image."""
+    import multiprocessing as mp
+
+    city, _, _, gl_r = scene
+    pose = city.pose_at_s(250.0, 0.0)
+    parent = gl_r.render_full(pose, glare=False)["luminance"]
+    with mp.get_context("spawn").Pool(1) as pool:
+        child = pool.apply(_render_luminance, (gl_r, pose))
+    np.testing.assert_array_equal(child, parent)
+
+
+def _render_luminance(renderer, pose):
+    return renderer.render_full(pose, glare=False)["luminance"]

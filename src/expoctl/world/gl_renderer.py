@@ -4,7 +4,8 @@ without a GPU, Mesa llvmpipe — its JIT runs the shader 8 pixels per SIMD instr
 
 One fragment of a full-screen triangle = one pixel ray, same algorithm and branch order as the numba kernel, so images
 agree closely (tests/world/test_gl_renderer.py states how closely); the differences are float32 rounding. Scene and
-lighting setup (lighting vector, lamp zoning, texture atlas, locate, glare, sub-frame blur) is the base Renderer's.
+lighting setup (lighting vector, lamp zoning, texture atlas, locate, glare, sub-frame blur) is the base Renderer's;
+the reference blur's sub-frame count still comes from its coarse (1/64 of the pixels) numba render.
 
 float32 precision: routes span kilometres, where float32 resolves only ~0.1 mm… 0.5 mm. So the shader never sees an
 absolute coordinate: every frame the CPU subtracts the camera position from the segment end points in float64 before
@@ -15,6 +16,7 @@ casting (rays start at the origin), arc lengths reach the shader as (tile cell i
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -45,13 +47,19 @@ _C_SCELL, _C_SREM, _C_FCELL, _C_FREM, _C_S12, _C_TX0, _C_O0, _C_NE_D, _C_NS_D = 
 SEG_STRIDE = (rt.NCOL + 11 + 3) // 4 * 4  # whole vec4s per segment (uniform-block layout, shaders/trace.glsl)
 
 _CTX = None  # one GL context per process, created on first use
+_CTX_PID = None  # a forked child inherits _CTX but not a usable context: it makes its own (forking while llvmpipe's
+# threads exist can still deadlock inside Mesa; the project's pools spawn their workers)
 _PROGRAMS: dict = {}
 _ATLAS_BUFFERS: dict = {}  # id(texels) → (texels array kept alive, buffers): cities sharing an atlas share it on the GPU
 
 
 def gl_context():
     """The process's headless EGL OpenGL 4.5 context (created on first call)."""
-    global _CTX
+    global _CTX, _CTX_PID
+    if _CTX is not None and _CTX_PID != os.getpid():
+        _CTX = None
+        _PROGRAMS.clear()
+        _ATLAS_BUFFERS.clear()
     if _CTX is None:
         try:
             import moderngl
@@ -60,6 +68,7 @@ def gl_context():
             raise ConfigError("world.render.backend",
                               f"'egl' needs an OpenGL 4.5 context through headless EGL (moderngl + Mesa libEGL), "
                               f"but creating one failed: {exc}; use backend: numba") from exc
+        _CTX_PID = os.getpid()
     return _CTX
 
 
@@ -156,7 +165,7 @@ class GLRenderer(Renderer):
 
     # ------------------------------------------------------------------ GL resources
     def _gl_state(self) -> dict:
-        if self._gl is not None:
+        if self._gl is not None and self._gl["pid"] == os.getpid():
             return self._gl
         ctx = gl_context()
         n_mat = self.offs.shape[0]
@@ -198,7 +207,7 @@ class GLRenderer(Renderer):
         if params_bytes > ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"]:
             raise ValueError(f"too many tunnel lamps for the GL backend's uniform block ({params_bytes} bytes)")
         self._gl = {
-            "ctx": ctx, "prog": prog, "blur": blur, "vao": ctx.vertex_array(prog, []),
+            "pid": os.getpid(), "ctx": ctx, "prog": prog, "blur": blur, "vao": ctx.vertex_array(prog, []),
             "vao_blur": ctx.vertex_array(blur, []), "texels": texel_buf, "seg_in_ubo": bool(sizes["SEG_IN_UBO"]),
             "seg": ctx.buffer(reserve=seg_bytes), "params": ctx.buffer(reserve=params_bytes),
             "sharp": sharp, "codes": codes, "fbo": ctx.framebuffer([sharp, codes]),
