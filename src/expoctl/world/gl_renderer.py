@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -182,11 +183,15 @@ class GLRenderer(Renderer):
                     for b in bufs:
                         b.release()
                 _ATLAS_BUFFERS.clear()
-            rgb = self.texels.reshape(-1, 3).astype(np.uint32)
-            packed = rgb[:, 0] | (rgb[:, 1] << 8) | (rgb[:, 2] << 16)  # unpackUnorm4x8 reads r from the low byte
+            # RGB bytes → one RGBA word per texel, built as bytes (no uint32 temporaries: the atlas is ~60 MB);
+            # unpackUnorm4x8 reads r from the low byte, which is byte 0 on a little-endian host
+            assert sys.byteorder == "little"
+            rgba = np.zeros((self.texels.size // 3, 4), np.uint8)
+            rgba[:, :3] = self.texels.reshape(-1, 3)
+            packed = rgba.ravel()
             if np.any(self.offs % 3):
                 raise ValueError("texture atlas levels must start on a texel boundary")
-            _ATLAS_BUFFERS[key] = (self.texels, (ctx.buffer(packed.tobytes()),))
+            _ATLAS_BUFFERS[key] = (self.texels, (ctx.buffer(packed),))
         texel_buf = _ATLAS_BUFFERS[key][1][0]
         w, h = self.width, self.height
         sharp = ctx.texture((w, h), 4, dtype="f4")
