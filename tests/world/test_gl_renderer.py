@@ -8,6 +8,7 @@ float32 rounding. Tolerances (measured at 160×120 on these 9 poses × 2 cities,
 - motion blur (fast and reference), relative: median < 1e-5, p99 < 5e-4 (measured ≤ 4.8e-7 and ≤ 6.9e-6)."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,7 +66,8 @@ def _compare(ref, out):
     assert np.median(rel) < 1e-5 and np.percentile(rel, 99) < 5e-4 and rel.max() < 0.1
     np.testing.assert_array_equal(np.isinf(ref["depth"])[agree], np.isinf(out["depth"])[agree])
     fin = agree & np.isfinite(ref["depth"])
-    assert _rel(ref["depth"][fin], out["depth"][fin]).max() < 1e-4
+    if fin.any():
+        assert _rel(ref["depth"][fin], out["depth"][fin]).max() < 1e-4
     return agree
 
 
@@ -180,3 +182,33 @@ def test_spawned_worker_renders_the_same(scene):
 
 def _render_luminance(renderer, pose):
     return renderer.render_full(pose, glare=False)["luminance"]
+
+
+HDRI = Path(__file__).resolve().parents[3] / "shared" / "data" / "hdri" / "kloppenheim_05_1k.hdr"
+
+
+@pytest.mark.parametrize("sky", ["overcast", "hdri"])
+def test_other_skies_match_numba(gl_ok, sky):
+    """Overcast (no sun: no shadow rays, CIE sky) and an HDRI sky map (bilinear equirectangular lookup); same bounds
+    (measured: median ≤ 2.2e-6, p99 ≤ 4.1e-5; with asin for the elevation the zenith view had p99 3.7e-3, see sky())."""
+    if sky == "hdri":
+        if not HDRI.is_file():
+            pytest.skip("shared HDRI examples absent")
+        city = load_city({"base": "train", "name": "hdri", "traversal": {
+            "hdri": {"path": str(HDRI), "median_cd_m2": 5000.0, "azimuth_deg": 30.0}}})
+        cond = city.traversal(0, 5).conditions
+    else:
+        city = load_city("train")
+        cond = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if t.conditions.overcast
+                    ).conditions
+    ref_r = Renderer(city, W, H, 70.0, conditions=cond)
+    gl_r = gl_renderer.GLRenderer(city, W, H, 70.0, conditions=cond)
+    start = float(city.cfg["tunnels"][0]["start_m"])
+    sky_share = []
+    for s, m in ((250.0, np.eye(3)), (250.0, UP), (start - 20.0, np.eye(3))):
+        pose = city.pose_at_s(s, 0.0)
+        pose[:3, :3] = pose[:3, :3] @ m
+        ref = ref_r.render_full(pose, glare=False)
+        _compare(ref, gl_r.render_full(pose, glare=False))
+        sky_share.append((ref["code"] == SKY).mean())
+    assert max(sky_share) > 0.9  # looking up: the sky fills the view
