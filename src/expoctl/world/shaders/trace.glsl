@@ -95,6 +95,15 @@ float box_hit(int i, int col, vec3 o, vec3 d, float t0, float best, out vec3 nrm
     return tmin;
 }
 
+// The segment's right and up axes from its forward axis, as route.build_segments makes them (right = F × ẑ
+// normalised, up = right × F): 3 uniform loads instead of 9 per segment step (each load is a per-lane gather on
+// llvmpipe, the walk's main cost); equal to the stored axes to float32 rounding.
+void frame(int i, out vec3 f, out vec3 r, out vec3 u) {
+    f = sv(i, C_F);
+    r = vec3(f.y, -f.x, 0.0) / sqrt(f.x * f.x + f.y * f.y);
+    u = cross(r, f);
+}
+
 Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cull) {
     int i = i0;
     bool inside = inside0;
@@ -103,7 +112,12 @@ Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cul
     // below already needs it for the next segment, and carries it over) and from the per-frame columns C_O0 (the
     // camera's local coordinates, float64 on the CPU) instead of o − P0: fewer uniform loads per step, same values
     // up to float32 rounding.
-    vec3 Fi = sv(i, C_F), Ri = sv(i, C_R), Ui = sv(i, C_U);
+    vec3 Fi, Ri, Ui;
+    frame(i, Fi, Ri, Ui);
+    // kind and roadside blocks of the current segment, carried over from the crossing step (which reads them for
+    // the next segment's faces anyway) instead of loaded again
+    float kind = S(i, C_KIND);
+    float l_off = S(i, C_L_OFF), l_h = S(i, C_L_H), r_off = S(i, C_R_OFF), r_h = S(i, C_R_H);
     float ou = dot(o, Fi) + S(i, C_O0), ov = dot(o, Ri) + S(i, C_O0 + 1), ow = dot(o, Ui) + S(i, C_O0 + 2);
     float du = dot(d, Fi), dv = dot(d, Ri), dw = dot(d, Ui);
     for (int it = 0; it < 4096; ++it) {
@@ -127,7 +141,6 @@ Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cul
         int code = -1;
         vec3 n = vec3(0.0);
         int mat = -1;
-        float kind = S(i, C_KIND);
         if (kind == KIND_TUNNEL && inside) {
             float hw = S(i, C_HW);
             float wall_h = S(i, C_WALL_H);
@@ -187,8 +200,8 @@ Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cul
                 float sgn = k == 0 ? -1.0 : 1.0;
                 float off, h, m;
                 bool reach;
-                if (k == 0) { off = S(i, C_L_OFF); h = S(i, C_L_H); m = S(i, C_L_MAT); reach = -v_min > off; }
-                else { off = S(i, C_R_OFF); h = S(i, C_R_H); m = S(i, C_R_MAT); reach = v_max > off; }
+                if (k == 0) { off = l_off; h = l_h; m = S(i, C_L_MAT); reach = -v_min > off; }
+                else { off = r_off; h = r_h; m = S(i, C_R_MAT); reach = v_max > off; }
                 if (off < NO_BLOCK_OFFSET && ((reach && w_min < h) || !cull)) {
                     bool side;
                     float t = block_entry(ov, ow, dv, dw, off, h, sgn, side);
@@ -219,7 +232,8 @@ Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cul
         // cross into the neighbouring segment
         t0 = t_exit;
         int j = (i + dirn + n_seg) % n_seg;
-        vec3 Fj = sv(j, C_F), Rj = sv(j, C_R), Uj = sv(j, C_U);
+        vec3 Fj, Rj, Uj;
+        frame(j, Fj, Rj, Uj);
         ou = dot(o, Fj) + S(j, C_O0); ov = dot(o, Rj) + S(j, C_O0 + 1); ow = dot(o, Uj) + S(j, C_O0 + 2);
         du = dot(d, Fj); dv = dot(d, Rj); dw = dot(d, Uj);
         float pu = ou + t0 * du, pv = ov + t0 * dv, pw = ow + t0 * dw;
@@ -227,7 +241,8 @@ Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cul
             if (d.z < 0.0) return mkhit(INF, FAR, j, j, false, vec3(0.0), vec3(0, 0, 1), MAT_VERGE);
             return mkhit(INF, SKY, j, j, false, vec3(0.0), vec3(0.0), -1);
         }
-        if (S(j, C_KIND) == KIND_TUNNEL) {
+        float kind_j = S(j, C_KIND);
+        if (kind_j == KIND_TUNNEL) {
             if (kind != KIND_TUNNEL) {
                 if (inside_profile(j, pv, pw)) inside = true;
                 else if (pw < S(j, C_HILL_H))
@@ -236,12 +251,14 @@ Hit trace(int i0, bool inside0, vec3 o, vec3 d, float tmax, float ztop, bool cul
             }
         } else {
             inside = false;
-            if (pv < -S(j, C_L_OFF) && pw < S(j, C_L_H))
+            l_off = S(j, C_L_OFF); l_h = S(j, C_L_H); r_off = S(j, C_R_OFF); r_h = S(j, C_R_H);
+            if (pv < -l_off && pw < l_h)
                 return mkhit(t0, FACE, j, i, false, vec3(pu, pv, pw), vec3(-float(dirn), 0, 0), int(S(j, C_L_MAT)));
-            if (pv > S(j, C_R_OFF) && pw < S(j, C_R_H))
+            if (pv > r_off && pw < r_h)
                 return mkhit(t0, FACE, j, i, false, vec3(pu, pv, pw), vec3(-float(dirn), 0, 0), int(S(j, C_R_MAT)));
         }
         i = j;
+        kind = kind_j;
     }
     return mkhit(INF, SKY, i, i, inside, vec3(0.0), vec3(0.0), -1);
 }
