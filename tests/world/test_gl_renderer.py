@@ -212,3 +212,16 @@ def test_other_skies_match_numba(gl_ok, sky):
         _compare(ref, gl_r.render_full(pose, glare=False))
         sky_share.append((ref["code"] == SKY).mean())
     assert max(sky_share) > 0.9  # looking up: the sky fills the view
+
+
+def test_storage_buffer_fallback_for_long_routes(scene, monkeypatch):
+    """Routes whose segment table exceeds a uniform block use a storage buffer: same shader code, same image."""
+    city, _, _, gl_r = scene
+    pose = city.pose_at_s(250.0, 0.0)
+    ubo = gl_r.render_full(pose, glare=False)
+    monkeypatch.setattr(gl_renderer, "_seg_fits_uniform_block", lambda ctx, nbytes: False)
+    r = gl_renderer.GLRenderer(city, W, H, 70.0, conditions=gl_r.conditions)
+    ssbo = r.render_full(pose, glare=False)
+    assert not r._gl["seg_in_ubo"]
+    for key in ("luminance", "depth", "code", "material"):
+        np.testing.assert_array_equal(ssbo[key], ubo[key], err_msg=key)
