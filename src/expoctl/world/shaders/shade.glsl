@@ -184,7 +184,9 @@ vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside
     float t = hit.t;
     float u = hit.p.x, v = hit.p.y, w = hit.p.z;
     vec3 nl = hit.n;
-    vec3 nw_ = nl.x * sv(j, C_F) + nl.y * sv(j, C_R) + nl.z * sv(j, C_U);
+    vec3 fj, rj, uj;
+    frame(j, fj, rj, uj);  // trace.glsl: axes from the forward axis (3 loads, not 9)
+    vec3 nw_ = nl.x * fj + nl.y * rj + nl.z * uj;
     int code = hit.code;
     int mat = hit.mat;
     bool interior = S(j, C_KIND) == KIND_TUNNEL && (code == GROUND || code == TWALL || code == TCEIL);
