@@ -72,7 +72,11 @@ def test_open_road_inliers_form_an_inverted_u(sweeps):
 def test_tunnel_peak_moves_by_the_luminance_ratio(sweeps):
     """The rising side of the U is set by noise in the bulk of the image, the falling side by clipping of its
     brightest few per cent (measured clipped share at the peaks: 3–6 %). So the peak moves by at least the ratio of the
-    bright ends (95th percentiles) and at most by the ratio of the medians, within the grid tolerance."""
+    bright ends (95th percentiles) and at most by the ratio of the medians, within the grid tolerance.
+
+    Holds for this traversal; not a general law of the simulator: at 320×240 the benchmark measures ORB shifts of
+    6.0 / 4.0 / 4.5 / 4.5 EV on traversals 0–3 against p95 ratios of 5.9 / 5.9 / 5.8 / 7.1 EV (traversals 1 and 3
+    below the bracket by 1.9 and 2.6 EV) and median ratios of 8.3–9.1 EV."""
     (road, y_road), (tunnel, y_tunnel) = sweeps["open_road"], sweeps["tunnel"]
     shift_ev = xs.peak(tunnel, "orb").ev - xs.peak(road, "orb").ev
     median_ev = np.log2(np.median(y_road) / np.median(y_tunnel))
