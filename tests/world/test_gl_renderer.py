@@ -19,11 +19,9 @@ from expoctl.world import gl_renderer
 from expoctl.world import route as rt
 from expoctl.world.raycast import FACE, PROP, SIDE, SKY, TCEIL, TWALL
 from expoctl.world.shade import MAT_LAMP
+from render_poses import UP, tunnel_poses
 
 W, H = 160, 120
-UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)  # camera rotations applied to a lane pose
-LEFT = np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]], float)
-BACK = np.array([[-1, 0, 0], [0, 1, 0], [0, 0, -1]], float)
 
 
 @pytest.fixture(scope="module")
@@ -35,15 +33,7 @@ def gl_ok():
 
 
 def _poses(city):
-    """Open road, approach, at the portal, just inside, deep inside looking at the exit, and turned views."""
-    t = city.cfg["tunnels"][0]
-    start, length = float(t["start_m"]), float(t["length_m"])
-    poses = [city.pose_at_s(s, 0.0) for s in (250.0, start - 20.0, start - 0.5, start + 2.0, start + length - 25.0)]
-    for s, m in ((250.0, LEFT), (start + 30.0, UP), (start - 3.0, BACK), (330.0, LEFT)):
-        p = city.pose_at_s(s, 0.0)
-        p[:3, :3] = p[:3, :3] @ m
-        poses.append(p)
-    return poses
+    return tunnel_poses(city, portal_offset_m=0.5)
 
 
 @pytest.fixture(scope="module", params=["train", "test"])

@@ -10,23 +10,11 @@ import pytest
 from expoctl.world import Renderer, load_city
 from expoctl.world import raycast as rc
 from expoctl.world.raycast import PROP, SIDE, SKY, TCEIL, TWALL, spread_stride
-
-# camera rotations applied to a lane pose: look up, to the left, backwards along the route
-UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
-LEFT = np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]], float)
-BACK = np.array([[-1, 0, 0], [0, 1, 0], [0, 0, -1]], float)
+from render_poses import tunnel_poses
 
 
 def _poses(city):
-    """Open road, approach and portal, tunnel interior (looking at the exit), and turned views (props, roadside)."""
-    start = float(city.cfg["tunnels"][0]["start_m"])
-    length = float(city.cfg["tunnels"][0]["length_m"])
-    poses = [city.pose_at_s(s, 0.0) for s in (250.0, start - 20.0, start - 1.0, start + 2.0, start + length - 25.0)]
-    for s, m in ((250.0, LEFT), (start + 30.0, UP), (start - 3.0, BACK), (330.0, LEFT)):
-        p = city.pose_at_s(s, 0.0)
-        p[:3, :3] = p[:3, :3] @ m
-        poses.append(p)
-    return poses
+    return tunnel_poses(city, portal_offset_m=1.0)
 
 
 @pytest.fixture(scope="module", params=["train", "test"])
