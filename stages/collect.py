@@ -12,33 +12,34 @@ from stages.common import PROJECT_ROOT, stage_main
 log = logging.getLogger(__name__)
 
 
-def iteration2_config(cfg: dict) -> dict:
-    """collect_iter2: `iteration2.collect` merged over `collect`; the iteration-1 network drives camera 1.
+def later_iteration_config(cfg: dict) -> dict:
+    """collect_iter<N>: `iteration<N>.collect` merged over `collect`; the previous iteration's network drives camera 1.
 
-    Disabled (`iteration2.enabled: false`): every split records zero sequences, so iteration 2 adds no data.
+    Disabled (`iteration<N>.enabled: false`): every split records zero sequences, so the iteration adds no data.
     """
     from expoctl.errors import ConfigError
     from expoctl.world.cities import deep_merge
 
-    it2 = cfg["iteration2"]
-    enabled = it2.get("enabled")
+    n, block = cfg["iteration"], cfg["iteration_block"]
+    enabled = block.get("enabled")
     if not isinstance(enabled, bool):
-        raise ConfigError("iteration2.enabled", f"must be true or false, got {enabled!r}")
-    collect_cfg = deep_merge(cfg["collect"], it2.get("collect") or {})
+        raise ConfigError(f"iteration{n}.enabled", f"must be true or false, got {enabled!r}")
+    collect_cfg = deep_merge(cfg["collect"], block.get("collect") or {})
     if not enabled:
         collect_cfg["splits"] = {k: {**v, "n_sequences": 0} for k, v in collect_cfg["splits"].items()}
     controllers = dict(cfg.get("controllers") or {})
     if collect_cfg.get("reference_controller") == "learned":
-        checkpoint = PROJECT_ROOT / cfg["paths_iter1"]["model"]
+        checkpoint = PROJECT_ROOT / cfg["paths_prev"]["model"]
         if enabled and not checkpoint.is_file():
-            raise ConfigError("paths.model", f"{checkpoint}: the iteration-1 model is missing (run the train stage)")
+            key = "paths.model" if n == 2 else f"iteration{n - 1}.paths.model"
+            raise ConfigError(key, f"{checkpoint}: the iteration-{n - 1} model is missing (run its train stage)")
         controllers["learned"] = {**(controllers.get("learned") or {}), "checkpoint": str(checkpoint)}
     return {**cfg, "collect": collect_cfg, "controllers": controllers}
 
 
 def run(cfg: dict, tracker) -> None:
-    if cfg.get("iteration") == 2:
-        cfg = iteration2_config(cfg)
+    if cfg.get("iteration", 1) > 1:
+        cfg = later_iteration_config(cfg)
     out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
     t0 = time.perf_counter()
     # a bar on a terminal; under DVC (no tty) one log line per finished sequence

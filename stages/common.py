@@ -37,6 +37,10 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 RESOLVED_CONFIG = PROJECT_ROOT / "configs" / "resolved.yaml"
 EXPERIMENT_NAME = "expoctl"
 
+#: Data-collection iterations run as stages `<name>_iter<N>`, N = 2 … LAST_ITERATION (conf/config.yaml `iteration<N>`
+#: blocks). The final model, which evaluate drives, is the last iteration's.
+LAST_ITERATION = 3
+
 #: The keys of configs/resolved.yaml each stage reads. dvc.yaml declares exactly these as the stage's params
 #: (tests/pipeline/test_dvc_yaml.py checks that they agree), so `dvc repro` re-runs a stage only when they change.
 STAGE_KEYS: dict[str, list[str]] = {
@@ -47,43 +51,62 @@ STAGE_KEYS: dict[str, list[str]] = {
     "samples": ["samples", "paths.frames", "paths.labels", "paths.samples"],
     "train": ["seed", "model", "train", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
               "paths.reports_dir"],
-    "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "iteration2.paths.model",
+    "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate",
+                 f"iteration{LAST_ITERATION}.paths.model",
                  "paths.frames", "paths.reports_dir"],
     "report": ["report", "paths.reports_dir"],
 }
 
 
-#: What an iteration-2 stage reads beyond its base stage's keys and `iteration2` (collect_iter2: the iteration-1 model).
-ITERATION2_EXTRA_KEYS: dict[str, list[str]] = {"collect": ["iteration2.collect", "paths.model"]}
+
+def split_stage_name(stage: str) -> tuple[str, int]:
+    """'features_iter3' → ('features', 3); 'features' → ('features', 1)."""
+    base, sep, n = stage.rpartition("_iter")
+    if sep and n.isdigit() and int(n) >= 2:
+        return base, int(n)
+    return stage, 1
 
 
 def stage_keys(stage: str) -> list[str]:
-    """Config keys of a DVC stage; `<name>_iter2` reads its base stage's keys plus the `iteration2` block."""
-    if stage.endswith("_iter2"):
-        base = stage.removesuffix("_iter2")
-        return STAGE_KEYS[base] + ["iteration2.enabled", "iteration2.paths"] + ITERATION2_EXTRA_KEYS.get(base, [])
-    return STAGE_KEYS.get(stage, [])
+    """Config keys of a DVC stage. `<name>_iter<N>` reads its base stage's keys, its own `iteration<N>` block's
+    `enabled` and `paths`, and every earlier iteration's paths (its raw directories are ingested again, the previous
+    model is collect's reference, the previous tables are reused); collect also reads `iteration<N>.collect`."""
+    base, n = split_stage_name(stage)
+    if n == 1:
+        return STAGE_KEYS.get(stage, [])
+    keys = STAGE_KEYS[base] + [f"iteration{n}.enabled", f"iteration{n}.paths"]
+    keys += [f"iteration{k}.paths" for k in range(2, n)]
+    if base == "collect":
+        keys += [f"iteration{n}.collect"] + (["paths.model"] if n == 2 else [])
+    return keys
 
 
 def for_iteration(cfg: dict[str, Any], iteration: int) -> dict[str, Any]:
-    """The config a stage sees in the paper's data-collection iteration `iteration` (1 or 2).
+    """The config a stage sees in the paper's data-collection iteration `iteration` (1 … LAST_ITERATION).
 
-    Iteration 2 (the trained network becomes camera 1's reference, more data is collected, and the model is retrained
-    on both sets) runs the same stage code on its own paths: `paths` becomes `iteration2.paths`, while the
-    iteration-1 paths stay readable as `paths_iter1` (ingest reads both raw directories, features reuses the
-    iteration-1 counts, collect takes the iteration-1 model as reference).
+    Iteration N ≥ 2 (the previous iteration's network becomes camera 1's reference, more data is collected, and the
+    model is retrained on all data so far) runs the same stage code on its own paths: `paths` becomes
+    `iteration<N>.paths` over the base paths, `paths_prev` holds the previous iteration's paths (collect's reference
+    model, the tables features reuses, the model train keeps when the iteration is disabled), `raw_dirs_prev` every
+    earlier iteration's raw directory (ingest reads them all, oldest first) and `iteration_block` the `iteration<N>`
+    block itself.
     """
     if iteration == 1:
         return cfg
-    if iteration != 2:
-        raise InputError(f"--iteration must be 1 or 2, got {iteration}")
-    it2 = cfg.get("iteration2")
-    if not isinstance(it2, dict) or not isinstance(it2.get("paths"), dict):
-        raise InputError(f"{RESOLVED_CONFIG}: config key 'iteration2.paths' is missing")
+    if not 2 <= iteration <= LAST_ITERATION:
+        raise InputError(f"--iteration must be 1 … {LAST_ITERATION}, got {iteration}")
+    paths = [cfg.get("paths") or {}]
+    for k in range(2, iteration + 1):
+        block = cfg.get(f"iteration{k}")
+        if not isinstance(block, dict) or not isinstance(block.get("paths"), dict):
+            raise InputError(f"{RESOLVED_CONFIG}: config key 'iteration{k}.paths' is missing")
+        paths.append({**paths[0], **block["paths"]})
     out = dict(cfg)
-    out["paths_iter1"] = dict(cfg["paths"])
-    out["paths"] = {**cfg["paths"], **it2["paths"]}
-    out["iteration"] = 2
+    out["paths"] = paths[-1]
+    out["paths_prev"] = paths[-2]
+    out["raw_dirs_prev"] = [p["raw_dir"] for p in paths[:-1]]
+    out["iteration_block"] = cfg[f"iteration{iteration}"]
+    out["iteration"] = iteration
     return out
 
 
@@ -221,15 +244,15 @@ def tracked_run(stage: str, cfg: dict[str, Any]) -> Iterator[Tracker]:
 def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> None:
     """Entry point of a DVC stage: run it tracked; user-caused errors print one line and exit 2.
 
-    `python -m stages.<name> --iteration 2` runs the stage for the paper's second data-collection iteration
-    (see `for_iteration`); its MLflow run and DVC stage are called `<name>_iter2`.
+    `python -m stages.<name> --iteration N` runs the stage for the N-th data-collection iteration (see
+    `for_iteration`); its MLflow run and DVC stage are called `<name>_iter<N>`.
     """
     import argparse
 
     parser = argparse.ArgumentParser(prog=f"python -m stages.{stage}")
-    parser.add_argument("--iteration", type=int, default=1, choices=(1, 2))
+    parser.add_argument("--iteration", type=int, default=1, choices=range(1, LAST_ITERATION + 1))
     args = parser.parse_args()
-    name = stage if args.iteration == 1 else f"{stage}_iter2"
+    name = stage if args.iteration == 1 else f"{stage}_iter{args.iteration}"
     logging.basicConfig(level=logging.INFO, format=f"[{name}] %(message)s")
     logging.getLogger("alembic").setLevel(logging.WARNING)
     try:

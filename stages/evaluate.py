@@ -17,20 +17,21 @@ from pathlib import Path
 import numpy as np
 
 from expoctl.evaluate import evaluate, metrics_summary, write_outputs
-from stages.common import PROJECT_ROOT, stage_main
+from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
 
 
 def final_model_config(cfg: dict) -> dict:
-    """The learned controller under evaluation is the pipeline's final model: iteration 2's (which is iteration 1's
-    when `iteration2.enabled` is false, see stages/train.py)."""
-    return {**cfg, "paths": {**cfg["paths"], "model": cfg["iteration2"]["paths"]["model"]}}
+    """The learned controller under evaluation is the pipeline's final model: the last iteration's (which is the
+    previous iteration's when that one is disabled, see stages/train.py)."""
+    final = cfg[f"iteration{LAST_ITERATION}"]["paths"]["model"]
+    return {**cfg, "paths": {**cfg["paths"], "model": final}}
 
 
 def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
-    if "iteration2" in cfg:
+    if f"iteration{LAST_ITERATION}" in cfg:
         cfg = final_model_config(cfg)
     t0 = time.perf_counter()
     result = evaluate(cfg, root, progress=sys.stderr.isatty())

@@ -68,12 +68,13 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
 
 
 def _reusable_iteration1(cfg: dict, root: Path, frames: pd.DataFrame, fcfg):
-    """Iteration 2 re-ingests iteration 1's sequences unchanged: take their counts from iteration 1's tables instead
-    of recomputing them. A sequence is reused only if its frames rows are identical in both iterations and the
-    iteration-1 tables hold every front end configured now. Returns (features, matches, frames still to compute)."""
-    if cfg.get("iteration") != 2:
+    """A later iteration re-ingests the earlier iterations' sequences unchanged: take their counts from the previous
+    iteration's tables instead of recomputing them. A sequence is reused only if its frames rows are identical in both
+    iterations and the previous tables hold every front end configured now. Returns (features, matches, frames still
+    to compute)."""
+    if cfg.get("iteration", 1) == 1:
         return None, None, frames
-    p1 = cfg["paths_iter1"]
+    p1 = cfg["paths_prev"]
     paths = [root / p1[k] for k in ("frames", "features", "matches")]
     if not all(p.is_file() for p in paths):
         return None, None, frames
@@ -86,7 +87,8 @@ def _reusable_iteration1(cfg: dict, root: Path, frames: pd.DataFrame, fcfg):
                 and old[key].sort_values(key[:3]).reset_index(drop=True).equals(
                     rows[key].sort_values(key[:3]).reset_index(drop=True)):
             reuse.append(seq)
-    log.info("iteration 2: reusing iteration-1 counts of %d of %d sequences", len(reuse), frames["sequence"].nunique())
+    log.info("iteration %d: reusing the previous iteration's counts of %d of %d sequences", cfg["iteration"], len(reuse),
+             frames["sequence"].nunique())
     keep = lambda t: t[t.sequence.isin(reuse) & t.frontend.isin(fcfg.frontends)]  # noqa: E731
     return keep(features1), keep(matches1), frames[~frames.sequence.isin(reuse)]
 

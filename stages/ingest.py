@@ -16,8 +16,8 @@ def run(cfg: dict, tracker) -> None:
     icfg = IngestConfig.from_dict(cfg["ingest"])
     t0 = time.perf_counter()
     raw_dirs = [PROJECT_ROOT / paths["raw_dir"]]
-    if cfg.get("iteration") == 2:  # iteration 2 trains on both data sets: iteration 1's sequences come first
-        raw_dirs.insert(0, PROJECT_ROOT / cfg["paths_iter1"]["raw_dir"])
+    if cfg.get("iteration", 1) > 1:  # a later iteration trains on all data so far: earlier sequences come first
+        raw_dirs = [PROJECT_ROOT / d for d in cfg["raw_dirs_prev"]] + raw_dirs
     frames = ingest(raw_dirs, PROJECT_ROOT / paths["frames"], PROJECT_ROOT / paths["images_dir"],
                     icfg, project_root=PROJECT_ROOT, progress=log.info)
     seconds = time.perf_counter() - t0

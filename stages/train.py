@@ -66,30 +66,31 @@ def train_from_config(cfg: dict, on_epoch=None, sets=None):
     return result, sets, (model_cfg, train_cfg, seed)
 
 
-def _keep_iteration1_model(cfg: dict, tracker) -> None:
-    """train_iter2 with iteration 2 disabled: the final model is iteration 1's (copied, so later stages have one
-    path to read)."""
+def _keep_previous_model(cfg: dict, tracker) -> None:
+    """train_iter<N> with iteration N disabled: its model is the previous iteration's (copied, so later stages have
+    one path to read)."""
     import shutil
 
     from expoctl.io import atomic_path
 
-    src_model = _path(cfg["paths_iter1"]["model"])
+    n = cfg["iteration"]
+    src_model = _path(cfg["paths_prev"]["model"])
     if not src_model.is_file():
-        raise InputError(f"{src_model}: the iteration-1 model is missing (run the train stage)")
+        raise InputError(f"{src_model}: the iteration-{n - 1} model is missing (run its train stage)")
     pairs = [(src_model, _path(cfg["paths"]["model"])),
              (src_model.with_suffix(".onnx"), _path(cfg["paths"]["model"]).with_suffix(".onnx")),
-             (_path(cfg["paths_iter1"]["reports_dir"]) / "train.json", _path(cfg["paths"]["reports_dir"]) / "train.json")]
+             (_path(cfg["paths_prev"]["reports_dir"]) / "train.json", _path(cfg["paths"]["reports_dir"]) / "train.json")]
     for src, dst in pairs:
         with atomic_path(dst) as tmp:
             shutil.copyfile(src, tmp)
-    tracker.log_metrics({"iteration2_enabled": 0.0})
-    log.info("iteration 2 disabled: keeping the iteration-1 model as %s", pairs[0][1])
+    tracker.log_metrics({f"iteration{n}_enabled": 0.0})
+    log.info("iteration %d disabled: keeping the iteration-%d model as %s", n, n - 1, pairs[0][1])
 
 
 def run(cfg: dict, tracker):
-    """The stage (rank 0 writes and logs); returns the TrainResult (None when iteration 2 is disabled)."""
-    if cfg.get("iteration") == 2 and not cfg["iteration2"].get("enabled", True):
-        _keep_iteration1_model(cfg, tracker)
+    """The stage (rank 0 writes and logs); returns the TrainResult (None when this iteration is disabled)."""
+    if cfg.get("iteration", 1) > 1 and not cfg["iteration_block"].get("enabled", True):
+        _keep_previous_model(cfg, tracker)
         return None
     rank = dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
     result, sets, (model_cfg, train_cfg, seed) = train_from_config(

@@ -103,8 +103,8 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
                      "thumb_span_s": 1.0, "n_jobs": n_jobs},
         "report": {"strip_split": "test", "strip_portal": "exit", "strip_columns": 4},
         "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt", "reports_dir": "reports"},
-        # the evaluate stage drives the pipeline's final model, iteration 2's path (here the one fixture model)
-        "iteration2": {"enabled": True, "paths": {"model": "models/controller.pt"}},
+        # the evaluate stage drives the pipeline's final model, the last iteration's path (here the one fixture model)
+        "iteration3": {"enabled": True, "paths": {"model": "models/controller.pt"}},
     }
 
 

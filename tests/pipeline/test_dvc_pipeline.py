@@ -17,7 +17,9 @@ def _ran(output: str) -> set[str]:
 
 
 ITERATION2 = {"collect_iter2", "ingest_iter2", "features_iter2", "labels_iter2", "samples_iter2", "train_iter2"}
-ALL_STAGES = {"compose", "collect", "ingest", "features", "labels", "samples", "train", "evaluate", "report"} | ITERATION2
+ITERATION3 = {name.replace("_iter2", "_iter3") for name in ITERATION2}
+ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", "train", "evaluate", "report"}
+              | ITERATION2 | ITERATION3)
 
 
 def test_repro_noop_and_per_key_rerun(project_copy):
@@ -31,7 +33,8 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert set(frames["split"]) == {"train", "validation", "test"} and "dynamic" in set(frames["section"])
     for out in ("data/features.parquet", "data/matches.parquet", "data/labels.parquet", "data/samples.parquet",
                 "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md",
-                "models/controller_iter2.pt", "reports/iter2/train.json", "reports/metrics.json",
+                "models/controller_iter2.pt", "reports/iter2/train.json", "models/controller_iter3.pt",
+                "reports/iter3/train.json", "reports/metrics.json",
                 "reports/eval/frames.parquet", "reports/results.md"):
         assert (p.root / out).is_file(), out
     metrics = json.loads((p.root / "reports" / "metrics.json").read_text())
@@ -47,29 +50,34 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     frames2 = pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet")
     assert set(frames["sequence"]) < set(frames2["sequence"])
     assert frames2["sequence"].nunique() == frames["sequence"].nunique() + 1
+    # iteration 3: one more, driven by the iteration-2 network, trained on all three data sets
+    frames3 = pd.read_parquet(p.root / "data" / "iter3" / "frames.parquet")
+    assert set(frames2["sequence"]) < set(frames3["sequence"])
+    assert frames3["sequence"].nunique() == frames2["sequence"].nunique() + 1
     assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
     assert p.stage_runs(children=True) == {"evaluate": 7 * 2}  # one per (controller, city), for the MLflow UI
 
     second = p.dvc("repro")
     assert _ran(second.stdout) == set(), second.stdout
 
-    # Switching iteration 2 off re-runs exactly the iteration-2 stages; the final model is then iteration 1's.
-    p.set_overrides(["scale=fixture", "iteration2.enabled=false"])
+    # Switching iteration 3 off re-runs exactly the iteration-3 stages; the final model is then iteration 2's.
+    p.set_overrides(["scale=fixture", "iteration3.enabled=false"])
     third = p.dvc("repro")
-    assert _ran(third.stdout) == {"compose", "evaluate", "report"} | ITERATION2, third.stdout
-    assert (p.root / "models" / "controller_iter2.pt").read_bytes() == (p.root / "models" / "controller.pt").read_bytes()
-    assert pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet").equals(frames)
+    assert _ran(third.stdout) == {"compose", "evaluate", "report"} | ITERATION3, third.stdout
+    model2 = (p.root / "models" / "controller_iter2.pt").read_bytes()
+    assert (p.root / "models" / "controller_iter3.pt").read_bytes() == model2
+    assert pd.read_parquet(p.root / "data" / "iter3" / "frames.parquet").equals(frames2)
 
     # A key no stage reads except compose: only compose re-runs (its output changes, but no stage's keys do).
-    p.set_overrides(["scale=fixture", "iteration2.enabled=false", "+unused_note=hello"])
+    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "+unused_note=hello"])
     fourth = p.dvc("repro")
     assert _ran(fourth.stdout) == {"compose"}, fourth.stdout
     # A leaf key (the report's layout): compose and report only.
-    p.set_overrides(["scale=fixture", "iteration2.enabled=false", "+unused_note=hello", "report.strip_columns=4"])
+    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "+unused_note=hello", "report.strip_columns=4"])
     assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
     runs = p.stage_runs()
     assert runs["report"] == 3 and runs["evaluate"] == 2
-    assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter2"] == 2
+    assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter2"] == 1 and runs["train_iter3"] == 2
 
 
 def test_bad_raw_data_stops_cleanly(project_copy):

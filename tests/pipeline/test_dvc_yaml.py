@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from stages.common import STAGE_KEYS, stage_keys
+from stages.common import STAGE_KEYS, split_stage_name, stage_keys
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
@@ -25,10 +25,10 @@ def test_every_stage_declares_its_config_keys():
         if name == "compose":
             assert stage["params"] == ["overrides"]
             continue
-        base = name.removesuffix("_iter2")
+        base, n = split_stage_name(name)
         assert base in STAGE_KEYS, f"stage {name} has no STAGE_KEYS entry"
         assert sorted(_declared_keys(stage)) == sorted(stage_keys(name)), name
-        expected_cmd = f"python -m stages.{base}" + (" --iteration 2" if name.endswith("_iter2") else "")
+        expected_cmd = f"python -m stages.{base}" + (f" --iteration {n}" if n > 1 else "")
         assert stage["cmd"] == expected_cmd, name
 
 

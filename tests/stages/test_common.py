@@ -46,16 +46,30 @@ def test_tracked_run_logs_one_run_with_tags(tmp_path, monkeypatch):
         mlflow.set_tracking_uri(None)
 
 
-def test_iteration2_swaps_paths_and_keeps_iteration1():
-    from stages.common import for_iteration, stage_keys
+def test_later_iterations_swap_paths_and_keep_the_earlier_ones():
+    from stages.common import for_iteration, split_stage_name, stage_keys
 
     cfg = {"paths": {"raw_dir": "data/raw", "model": "models/controller.pt", "frames": "f.parquet"},
-           "iteration2": {"enabled": True, "paths": {"raw_dir": "data/raw_iter2", "model": "models/c2.pt"}}}
+           "iteration2": {"enabled": True, "paths": {"raw_dir": "data/raw_iter2", "model": "models/c2.pt"}},
+           "iteration3": {"enabled": False, "paths": {"raw_dir": "data/raw_iter3", "model": "models/c3.pt"}}}
     it2 = for_iteration(cfg, 2)
     assert it2["paths"] == {"raw_dir": "data/raw_iter2", "model": "models/c2.pt", "frames": "f.parquet"}
-    assert it2["paths_iter1"] == cfg["paths"] and it2["iteration"] == 2
+    assert it2["paths_prev"] == cfg["paths"] and it2["iteration"] == 2
+    assert it2["raw_dirs_prev"] == ["data/raw"] and it2["iteration_block"] is cfg["iteration2"]
+    it3 = for_iteration(cfg, 3)
+    assert it3["paths"] == {"raw_dir": "data/raw_iter3", "model": "models/c3.pt", "frames": "f.parquet"}
+    assert it3["paths_prev"] == it2["paths"]  # iteration 2's model is iteration 3's reference
+    assert it3["raw_dirs_prev"] == ["data/raw", "data/raw_iter2"] and it3["iteration_block"]["enabled"] is False
     assert for_iteration(cfg, 1) is cfg
+    assert split_stage_name("features_iter3") == ("features", 3) and split_stage_name("train") == ("train", 1)
     assert stage_keys("ingest_iter2") == stage_keys("ingest") + ["iteration2.enabled", "iteration2.paths"]
+    assert stage_keys("ingest_iter3") == stage_keys("ingest") + ["iteration3.enabled", "iteration3.paths",
+                                                                 "iteration2.paths"]
     assert "iteration2.collect" in stage_keys("collect_iter2") and "paths.model" in stage_keys("collect_iter2")
+    assert "iteration3.collect" in stage_keys("collect_iter3") and "iteration2.paths" in stage_keys("collect_iter3")
     with pytest.raises(InputError, match="iteration2.paths"):
         for_iteration({"paths": {}}, 2)
+    with pytest.raises(InputError, match="iteration3.paths"):
+        for_iteration({k: v for k, v in cfg.items() if k != "iteration3"}, 3)
+    with pytest.raises(InputError, match="--iteration"):
+        for_iteration(cfg, 4)
