@@ -24,6 +24,7 @@ ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", 
 
 def test_repro_noop_and_per_key_rerun(project_copy):
     p = project_copy
+    p.set_overrides(["scale=fixture", "iteration3.enabled=true"])  # off by default; on here so the DAG runs it
     first = p.dvc("repro")
     assert _ran(first.stdout) == ALL_STAGES, first.stdout
     frames = pd.read_parquet(p.root / "data" / "frames.parquet")
