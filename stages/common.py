@@ -58,7 +58,6 @@ STAGE_KEYS: dict[str, list[str]] = {
 }
 
 
-
 def split_stage_name(stage: str) -> tuple[str, int]:
     """'features_iter3' → ('features', 3); 'features' → ('features', 1)."""
     base, sep, n = stage.rpartition("_iter")

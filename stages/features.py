@@ -36,7 +36,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     tracker.log_params({"effective": effective})
 
     t0 = time.perf_counter()
-    reused_features, reused_matches, todo = _reusable_iteration1(cfg, root, frames, fcfg)
+    reused_features, reused_matches, todo = _reusable_previous_iteration(cfg, root, frames, fcfg)
     features, matches = compute_features(todo, root, fcfg, progress=True) if len(todo) else (None, None)
     if reused_features is not None:
         features = pd.concat([t for t in (reused_features, features) if t is not None], ignore_index=True)
@@ -67,7 +67,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
                        f"{metrics[f'{n}.median_n_inliers']:.0f} inliers" for n in fcfg.frontends))
 
 
-def _reusable_iteration1(cfg: dict, root: Path, frames: pd.DataFrame, fcfg):
+def _reusable_previous_iteration(cfg: dict, root: Path, frames: pd.DataFrame, fcfg):
     """A later iteration re-ingests the earlier iterations' sequences unchanged: take their counts from the previous
     iteration's tables instead of recomputing them. A sequence is reused only if its frames rows are identical in both
     iterations and the previous tables hold every front end configured now. Returns (features, matches, frames still
