@@ -41,8 +41,7 @@ def settings_ev(gain_norm: np.ndarray, exposure_norm: np.ndarray, exposure_scale
     return exposure_value_ev(norm_to_gain(gain_norm), norm_to_exposure(exposure_norm, exposure_scale))
 
 
-def probe(samples, checkpoint: Path, batch_size: int = 256) -> dict:
-    ctrl = LearnedController.from_checkpoint(checkpoint)
+def probe(samples, ctrl: LearnedController, checkpoint: Path, batch_size: int = 256) -> dict:
     ids = samples.sample_id
     stem = np.array([s.rsplit("/", 1)[0] for s in ids])
     combo = np.array([s.rsplit("/", 1)[1] for s in ids])
@@ -92,7 +91,7 @@ def main() -> None:
         sets = load_sample_sets_from_files(args.data / "samples.parquet", args.data / "frames.parquet",
                                            args.data / "images", ctrl.input_hw, splits=("validation",),
                                            exposure_scale=ctrl.exposure_scale)
-        rows.append(probe(sets["validation"], ckpt))
+        rows.append(probe(sets["validation"], ctrl, ckpt))
     print(f"validation split of {args.data} ({rows[0]['n_time_steps']} time steps, {rows[0]['n_used']} with "
           f"|Δ input| > {MIN_INPUT_DIFFERENCE_EV} EV)")
     print(f"{'network':34s} {'follow':>7s} {'bias':>8s} {'target':>8s} {'|err| c111':>11s} {'|err| c222':>11s} "
