@@ -68,6 +68,19 @@ def test_early_stopping(sets):
     assert r.epochs_run == 3 and r.best_epoch == 0
 
 
+def test_train_subset_fixed_or_per_epoch(sets):
+    n = len(sets["train"])
+    base = dict(lr=1e-3, batch_size=8, epochs=4, patience=10, num_threads=1, max_train_samples=n // 4)
+    fixed = fit(TINY, TrainConfig(**base), sets["train"], sets["validation"], seed=1).metrics
+    assert fixed["n_train_samples"] == fixed["n_distinct_train_samples"] == n // 4
+    fresh = fit(TINY, TrainConfig(**base, train_subset="per_epoch"), sets["train"], sets["validation"], seed=1).metrics
+    # 4 independent draws of a quarter each: expected distinct share 1 − 0.75⁴ ≈ 68 % (a fixed subset: 25 %)
+    assert fresh["n_train_samples"] == n // 4
+    assert fresh["n_distinct_train_samples"] > 0.5 * n
+    with pytest.raises(ConfigError, match="train.train_subset"):
+        TrainConfig.from_dict({"train_subset": "each"})
+
+
 def test_input_size_mismatch_is_a_config_error(sets):
     cfg = ModelConfig(input_size=(40, 40), conv_kernels=(3, 3, 3), pool=2)
     with pytest.raises(ConfigError, match="model.input_size"):

@@ -48,6 +48,9 @@ class TrainConfig:
     num_threads: int = 2  # torch.set_num_threads per process
     eval_batch_size: int = 256
     max_train_samples: int | None = None  # random subset (for quick studies); None = all
+    # "fixed": one random subset of max_train_samples for the whole run; "per_epoch": a fresh random subset of that
+    # size every epoch (same cost per epoch, but over the run the network sees most of the data)
+    train_subset: str = "fixed"
     max_validation_samples: int | None = None
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
@@ -89,6 +92,7 @@ class TrainConfig:
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
             ("mlflow_model_format", self.mlflow_model_format in ("pt2", "pickle"), "must be pt2 or pickle"),
+            ("train_subset", self.train_subset in ("fixed", "per_epoch"), "must be fixed or per_epoch"),
             ("max_train_samples", self.max_train_samples is None or self.max_train_samples >= 2, "must be ≥ 2 or null"),
             ("max_validation_samples", self.max_validation_samples is None or self.max_validation_samples >= 1,
              "must be ≥ 1 or null"),
@@ -224,13 +228,17 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
 
     best = (math.inf, -1, None)
+    seen = np.zeros(len(train), bool)  # which training samples any epoch drew
     history: list[dict] = []
     n_bad = 0
     total_train_time = 0.0
     samples_seen = 0
     for epoch in range(cfg.epochs):
+        if cfg.train_subset == "per_epoch" and epoch > 0:  # identical on every rank: seeded by (seed, epoch) only
+            train_rows = _subset(len(train), cfg.max_train_samples, np.random.default_rng([seed, epoch]))
         gen = torch.Generator().manual_seed(seed * 7919 + epoch)  # identical on every rank
         perm = train_rows[torch.randperm(len(train_rows), generator=gen).numpy()]
+        seen[train_rows] = True
         flips = torch.rand(len(perm), generator=gen) < cfg.flip_prob
         net.train()
         t0 = time.perf_counter()
@@ -296,7 +304,8 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
         "val_loss_ratio_to_baseline": val["loss"] / base["loss"] if base["loss"] > 0 else float("nan"),
         "beats_baseline": bool(val["loss"] < base["loss"]),
         "best_epoch": best[1], "epochs_run": len(history),
-        "n_train_samples": int(len(train_rows)), "n_validation_samples": int(len(val_rows)),
+        "n_train_samples": int(len(train_rows)), "n_distinct_train_samples": int(seen.sum()),
+        "n_validation_samples": int(len(val_rows)),
         "n_processes": world, "n_parameters": count_parameters(model), "macs_per_sample": count_macs(model_cfg),
         "train_samples_per_s": samples_seen * world / total_train_time if total_train_time > 0 else float("nan"),
     }
