@@ -10,7 +10,7 @@ import pytest
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.evaluate_run import VARIANTS
-from expoctl.report import ReportConfig, load_eval, nfm_table, tracking_table
+from expoctl.report import ReportConfig, headline, load_eval, nfm_table, tracking_table, vo_margin_table
 
 
 def _metrics():
@@ -33,6 +33,19 @@ def test_nfm_table_orders_controllers_bolds_best_causal_and_italicises_the_oracl
     assert "**Dynamic**" in body[3]
     sl = nfm_table(_metrics(), "validation", sumlog=True)
     assert "AG+AE (SL)" in sl
+
+
+def test_vo_margin_is_the_worst_pair_per_run_and_counts_runs_at_stricter_thresholds():
+    runs = pd.DataFrame({"route_split": ["validation", "test", "validation", "test"],
+                         "controller": ["agae", "agae", "learned", "learned"], "vo_min_inliers": [40, 90, 150, 20]})
+    md = vo_margin_table(runs, thresholds=(20, 21, 100)).splitlines()
+    assert md[0].count("tracked at ≥") == 3
+    cells = {r.split("|")[1].strip(): [x.strip() for x in r.split("|")[2:-1]] for r in md[2:]}
+    assert list(cells) == ["AG+AE", "Ours"]
+    # a run fails below the threshold, so a worst pair of 20 still tracks at 20
+    assert cells["AG+AE"] == ["40 / 40", "90 / 90", "2/2", "2/2", "0/2"]
+    assert cells["Ours"] == ["150 / 150", "20 / 20", "2/2", "1/2", "1/2"]
+    assert headline(_metrics(), runs)[0].endswith("(worst frame pair 150 vs 40 tracked inliers).")
 
 
 def test_tracking_table_counts_and_ate_over_successes():

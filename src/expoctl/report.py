@@ -135,6 +135,31 @@ def tracking_table(metrics: dict, runs: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+#: stricter tracking thresholds (tracked inliers per frame pair) for the VO margin table. The frame-to-frame VO here
+#: is more lenient than the paper's ORB-SLAM2, which tracks map points from older keyframes.
+VO_MARGIN_THRESHOLDS = (20, 50, 100, 150, 200)
+
+
+def vo_margin_table(runs: pd.DataFrame, thresholds=VO_MARGIN_THRESHOLDS) -> str:
+    """Per controller and split: the worst frame pair's tracked-inlier count of each run (`vo_min_inliers`, the
+    strictest threshold at which that run would still have tracked), as min / median over runs, and the runs of
+    both splits tracked at stricter thresholds (a run fails below the threshold)."""
+    splits = [s for s in ("validation", "test") if s in set(runs.route_split)]
+    ctrls = [c for c in CONTROLLER_NAMES if c in set(runs.controller)]
+    head = "| Method | " + " | ".join(f"worst pair, {s}: min / median over runs" for s in splits) + " | " + \
+        " | ".join(f"tracked at ≥ {t}" for t in thresholds) + " |"
+    lines = [head, "|---|" + "---:|" * (len(splits) + len(thresholds))]
+    for c in ctrls:
+        cells = []
+        for s in splits:
+            w = runs.loc[(runs.route_split == s) & (runs.controller == c), "vo_min_inliers"].to_numpy(float)
+            cells.append(f"{w.min():.0f} / {np.median(w):.0f}" if len(w) else "—")
+        w_all = runs.loc[runs.controller == c, "vo_min_inliers"].to_numpy(float)
+        cells += [f"{int((w_all >= t).sum())}/{len(w_all)}" for t in thresholds]
+        lines.append(f"| {label(c)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def runs_table(runs: pd.DataFrame) -> str:
     """Per window: the frame where VO lost track (— = tracked throughout) for every controller."""
     ctrls = [c for c in CONTROLLER_NAMES if c in set(runs.controller)]
@@ -162,8 +187,9 @@ def timing_table(runs: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def headline(metrics: dict) -> list[str]:
-    """Sentences comparing the learned controller with AG+AE and the oracle on dynamic sections."""
+def headline(metrics: dict, runs: pd.DataFrame | None = None) -> list[str]:
+    """Sentences comparing the learned controller with AG+AE and the oracle on dynamic sections (and, given the
+    runs table, their VO margins: the worst frame pair's tracked inliers over the split's runs)."""
     out = []
     for split in ("validation", "test"):
         m = metrics.get(split) or {}
@@ -180,7 +206,12 @@ def headline(metrics: dict) -> list[str]:
             o = m["oracle"]["dynamic"]["orb"]
             line += f" (oracle ORB median {_fmt(o['median_nfm'])}, minimum {_fmt(o['min_nfm'])})"
         t_l, t_a = m["learned"]["tracking_success"], m["agae"]["tracking_success"]
-        line += f"; VO tracking {t_l[0]}/{t_l[1]} vs {t_a[0]}/{t_a[1]}."
+        line += f"; VO tracking {t_l[0]}/{t_l[1]} vs {t_a[0]}/{t_a[1]}"
+        if runs is not None:
+            worst = runs[runs.route_split == split].groupby("controller").vo_min_inliers.min()
+            if {"learned", "agae"} <= set(worst.index):
+                line += f" (worst frame pair {worst['learned']:.0f} vs {worst['agae']:.0f} tracked inliers)"
+        line += "."
         out.append(line)
     return out
 
@@ -213,7 +244,7 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
           f"Runs: {runs['run_id'].nunique()} ({runs['sequence'].nunique()} windows × "
           f"{runs['controller'].nunique()} controllers), {int(n_frames.sum())} frames "
           f"(median {int(n_frames.median())} per run).", "", "## Headline", ""]
-    md += headline(metrics) or ["- (learned or AG+AE not evaluated)"]
+    md += headline(metrics, runs) or ["- (learned or AG+AE not evaluated)"]
     md += ["", f"Paper (real rig, validation, dynamic; shapes only): AG+AE median {PAPER_DYNAMIC['agae'][0]} / "
            f"{PAPER_DYNAMIC['agae'][1]}, minimum {PAPER_DYNAMIC['agae'][2]} / {PAPER_DYNAMIC['agae'][3]}; ours median "
            f"{PAPER_DYNAMIC['learned'][0]} / {PAPER_DYNAMIC['learned'][1]}, minimum {PAPER_DYNAMIC['learned'][2]} / "
@@ -227,6 +258,10 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
            "Monocular frame-to-frame VO (ORB + essential matrix); a run fails when the tracked inliers of a frame pair "
            "fall below the threshold at any frame. ATE: RMSE after rigid alignment, scale from ground truth, over "
            "successful runs.", "", tracking_table(metrics, runs), "", "Per window:", "", runs_table(runs), "",
+           "VO margin: the tracked-inlier count of each run's worst frame pair, i.e. the strictest threshold at which "
+           "the run would still have tracked (this VO matches frame to frame; ORB-SLAM2 tracks map points from older "
+           "keyframes and loses track earlier). Runs tracked at stricter thresholds pool both cities.", "",
+           vo_margin_table(runs), "",
            "## Timing", "", timing_table(runs), "", "## Figures", ""]
     captions = {
         "fig7_tunnel_timeline": "Fig. 7 analogue: NFM (ORB, libviso2-style) and gain / exposure per frame through a "
