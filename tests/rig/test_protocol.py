@@ -4,7 +4,7 @@ import pytest
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
-from expoctl.rig.protocol import PerturbationConfig, perturb, quadrant
+from expoctl.rig.protocol import PerturbationConfig, excursion_offset_ev, perturb, quadrant
 
 
 def test_quadrant_cycle_visits_all_four_every_four_frames():
@@ -79,6 +79,11 @@ def test_deterministic_per_seed_and_frame():
         ({"zero_gain_add_db": 3}, "rig.perturbation.zero_gain_add_db"),
         ({"zero_gain_add_in_down_quadrants": "yes"}, "rig.perturbation.zero_gain_add_in_down_quadrants"),
         ({"max_fractoin": 0.5}, "rig.perturbation.max_fractoin"),
+        ({"excursion_probability": 1.5}, "rig.perturbation.excursion_probability"),
+        ({"excursion_ev": [5, 2]}, "rig.perturbation.excursion_ev"),
+        ({"excursion_ev": [0, 2]}, "rig.perturbation.excursion_ev"),
+        ({"excursion_frames": 0}, "rig.perturbation.excursion_frames"),
+        ({"excursion_frames": 2.5}, "rig.perturbation.excursion_frames"),
     ],
 )
 def test_bad_config_names_the_key(bad, key):
@@ -88,5 +93,39 @@ def test_bad_config_names_the_key(bad, key):
 
 
 def test_config_round_trip():
-    cfg = PerturbationConfig.from_dict({"max_fraction": 0.4, "zero_gain_add_db": [2, 5]})
+    cfg = PerturbationConfig.from_dict({"max_fraction": 0.4, "zero_gain_add_db": [2, 5], "excursion_ev": [1, 3]})
     assert PerturbationConfig.from_dict(cfg.to_dict()) == cfg
+
+
+def _product_ev(s: Settings) -> float:
+    return float(np.log2(s.exposure_us) + s.gain_db / (20 * np.log10(2)))
+
+
+def test_no_excursions_by_default_is_the_paper_protocol():
+    assert all(excursion_offset_ev(t, 3, PerturbationConfig()) == 0.0 for t in range(200))
+
+
+def test_excursions_hold_for_a_block_and_scale_the_product():
+    cfg = PerturbationConfig(excursion_probability=0.5, excursion_ev=(2.0, 5.0), excursion_frames=6)
+    offsets = np.array([excursion_offset_ev(t, 3, cfg) for t in range(6000)])
+    blocks = offsets.reshape(-1, 6)
+    assert (blocks == blocks[:, :1]).all()  # one offset per 6-frame block
+    on = blocks[:, 0] != 0.0
+    assert 0.45 < on.mean() < 0.55  # 1000 blocks at p = 0.5 (seeded; one standard error is 0.016)
+    size = np.abs(blocks[on, 0])
+    assert size.min() >= 2.0 and size.max() <= 5.0
+    assert 0.4 < (blocks[on, 0] > 0).mean() < 0.6  # both signs
+    # inside the camera ranges the product moves by exactly the offset, exposure time first
+    ref = Settings(0.0, 1000.0)
+    t = int(np.flatnonzero(offsets > 0)[0])
+    out = perturb(ref, t, 3, cfg)
+    assert _product_ev(out) - _product_ev(ref) == pytest.approx(offsets[t])
+    assert out.gain_db == 0.0 and out.exposure_us == pytest.approx(1000.0 * 2 ** offsets[t])
+    # exposure at its upper limit: the rest of the offset goes to gain
+    tunnel = Settings(6.0, EXPOSURE_US_MAX)
+    out = perturb(tunnel, t, 3, cfg)
+    assert out.exposure_us == EXPOSURE_US_MAX
+    assert out.gain_db == pytest.approx(min(GAIN_DB_MAX, 6.0 + offsets[t] * 20 * np.log10(2)))
+    # outside excursions the quadrant cycle is unchanged
+    t0 = int(np.flatnonzero(offsets == 0.0)[0])
+    assert perturb(ref, t0, 3, cfg) == perturb(ref, t0, 3, PerturbationConfig())

@@ -15,6 +15,16 @@ Our choices where the paper is silent (documented so a reader can check them):
 - Results are clamped to the camera ranges (0–30 dB, 75–30000 µs).
 - Randomness comes from a generator seeded per (sequence seed, frame index), so any frame's perturbation can be
   reproduced on its own, independent of how many frames came before or which process rendered it.
+
+Beyond the paper (off unless `excursion_probability` > 0): **large excursions**. The quadrant cycle keeps camera 2
+within about ±1 EV of camera 1, so the training data never show the network a badly exposed frame, and in closed
+loop its step in such states is unconstrained (`benchmarks/saturation_recovery.py`). With excursions, the frames are
+cut into blocks of `excursion_frames`; each block is, with probability `excursion_probability`, an excursion: for
+the whole block camera 2's exposure product is camera 1's × 2^(±m), m ~ U[`excursion_ev`], the sign drawn per block
+(split exposure first: camera 1's gain is kept while the exposure time has range, then gain moves). A block's draw
+is seeded by (sequence seed, block index) alone, so any frame's settings still reproduce on their own. Labels of
+those time steps come from the best image in the window as always, mostly camera 1's, so the network's inputs from
+an over- or under-exposed camera 2 are paired with targets back near the well-exposed settings.
 """
 
 from __future__ import annotations
@@ -23,6 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
 
@@ -31,6 +42,7 @@ QUADRANT_SIGNS: tuple[tuple[int, int], ...] = ((+1, +1), (+1, -1), (-1, +1), (-1
 
 #: stream id mixed into per-frame seeds so perturbation draws never collide with sensor-noise draws
 _PERTURBATION_STREAM = 0x5E7
+_EXCURSION_STREAM = 0xE8C
 
 
 @dataclass(frozen=True)
@@ -41,16 +53,20 @@ class PerturbationConfig:
     zero_gain_threshold_db: float = 0.5
     zero_gain_add_db: tuple[float, float] = (1.0, 6.0)
     zero_gain_add_in_down_quadrants: bool = False
+    excursion_probability: float = 0.0  # share of blocks that are excursions (0 = the paper's protocol)
+    excursion_ev: tuple[float, float] = (2.0, 5.0)  # |offset| of camera 2's exposure product from camera 1's, EV
+    excursion_frames: int = 6  # block length
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "rig.perturbation") -> "PerturbationConfig":
         d = dict(d or {})
-        known = {"max_fraction", "zero_gain_threshold_db", "zero_gain_add_db", "zero_gain_add_in_down_quadrants"}
+        known = {"max_fraction", "zero_gain_threshold_db", "zero_gain_add_db", "zero_gain_add_in_down_quadrants",
+                 "excursion_probability", "excursion_ev", "excursion_frames"}
         for k in d:
             if k not in known:
                 raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
         kw: dict = {}
-        for name in ("max_fraction", "zero_gain_threshold_db"):
+        for name in ("max_fraction", "zero_gain_threshold_db", "excursion_probability"):
             if name in d:
                 kw[name] = _number(d[name], f"{key}.{name}")
         if "zero_gain_add_db" in d:
@@ -63,6 +79,16 @@ class PerturbationConfig:
             if not isinstance(v, bool):
                 raise ConfigError(f"{key}.zero_gain_add_in_down_quadrants", f"expected true/false, got {v!r}")
             kw["zero_gain_add_in_down_quadrants"] = v
+        if "excursion_ev" in d:
+            v = d["excursion_ev"]
+            if not isinstance(v, (list, tuple)) or len(v) != 2:
+                raise ConfigError(f"{key}.excursion_ev", f"expected [low_ev, high_ev], got {v!r}")
+            kw["excursion_ev"] = (_number(v[0], f"{key}.excursion_ev"), _number(v[1], f"{key}.excursion_ev"))
+        if "excursion_frames" in d:
+            v = d["excursion_frames"]
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise ConfigError(f"{key}.excursion_frames", f"expected an integer number of frames, got {v!r}")
+            kw["excursion_frames"] = v
         out = cls(**kw)
         out.validate(key)
         return out
@@ -75,10 +101,18 @@ class PerturbationConfig:
         lo, hi = self.zero_gain_add_db
         if not 0.0 <= lo <= hi <= 30.0:
             raise ConfigError(f"{key}.zero_gain_add_db", f"need 0 <= low <= high <= 30 dB, got [{lo}, {hi}]")
+        if not 0.0 <= self.excursion_probability <= 1.0:
+            raise ConfigError(f"{key}.excursion_probability", f"must be in [0, 1], got {self.excursion_probability}")
+        lo, hi = self.excursion_ev
+        if not 0.0 < lo <= hi <= 15.0:
+            raise ConfigError(f"{key}.excursion_ev", f"need 0 < low <= high <= 15 EV, got [{lo}, {hi}]")
+        if self.excursion_frames < 1:
+            raise ConfigError(f"{key}.excursion_frames", f"must be >= 1, got {self.excursion_frames}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["zero_gain_add_db"] = list(self.zero_gain_add_db)
+        d["excursion_ev"] = list(self.excursion_ev)
         return d
 
 
@@ -92,8 +126,32 @@ def perturbation_rng(seed: int, frame_index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), _PERTURBATION_STREAM, int(frame_index)]))
 
 
+def excursion_offset_ev(frame_index: int, seed: int, cfg: PerturbationConfig) -> float:
+    """Camera 2's excursion (EV from camera 1's exposure product) for `frame_index`; 0.0 outside excursions."""
+    if cfg.excursion_probability <= 0.0:
+        return 0.0
+    block = int(frame_index) // cfg.excursion_frames
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), _EXCURSION_STREAM, block]))
+    u_on, u_size, u_sign = rng.uniform(0.0, 1.0, size=3)
+    if u_on >= cfg.excursion_probability:
+        return 0.0
+    lo, hi = cfg.excursion_ev
+    return float((lo + (hi - lo) * u_size) * (1.0 if u_sign < 0.5 else -1.0))
+
+
+def _scale_product(reference: Settings, offset_ev: float) -> Settings:
+    """reference's exposure product × 2^offset_ev: exposure time first, keeping the gain while it has range."""
+    exposure_us = float(np.clip(reference.exposure_us * 2.0 ** offset_ev, EXPOSURE_US_MIN, EXPOSURE_US_MAX))
+    left_ev = offset_ev - float(np.log2(exposure_us / reference.exposure_us))  # what the exposure range could not take
+    gain_db = reference.gain_db + left_ev * 20.0 * float(np.log10(2.0))
+    return Settings(gain_db, exposure_us).clamped()
+
+
 def perturb(reference: Settings, frame_index: int, seed: int, cfg: PerturbationConfig = PerturbationConfig()) -> Settings:
     """Camera 2's settings for `frame_index`, given camera 1's settings for the same frame."""
+    offset = excursion_offset_ev(frame_index, seed, cfg)
+    if offset != 0.0:
+        return _scale_product(reference, offset)
     gain_sign, exposure_sign = quadrant(frame_index)
     rng = perturbation_rng(seed, frame_index)
     # draw in a fixed order so each quantity's value does not depend on which branch is taken
