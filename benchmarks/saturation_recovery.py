@@ -131,6 +131,11 @@ def main() -> int:
         ref = float(evs[-LAST:].mean())
         results["starts"][name] = {"frame": int(start), "agae_ref_ev": ref}
     print(f"train city, traversal {TRAVERSAL}, {args.width}×{args.height}, {args.frames} frames per run")
+    for name, st in results["starts"].items():  # the camera's ranges clip some starts (e.g. −4 EV in daylight)
+        actual = [ev_of(split_exposure_first((st["agae_ref_ev"] + k) * math.log(2.0) + math.log(1e6))) - st["agae_ref_ev"]
+                  for k in args.offsets]
+        st["start_offsets_ev"] = actual
+        print(f"  {name} (frame {st['frame']}): starts at " + ", ".join(f"{a:+.1f}" for a in actual) + " EV from AG+AE")
     print(f"{'network':34s} {'start':9s} " + " ".join(f"{'k=' + format(k, '+g'):>16s}" for k in args.offsets))
     print(f"{'':34s} {'':9s} " + " ".join(f"{'final / step / sat':>16s}" for _ in args.offsets))
     for ckpt in args.checkpoints:
