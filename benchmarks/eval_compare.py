@@ -3,7 +3,8 @@
 Every controller of an evaluation drives the same windows with the same seeds, so per dynamic section the minimum NFM
 of a controller and of AG+AE form a pair. This prints, per city and front end, the mean minimum NFM of each controller,
 the paired difference to AG+AE (mean ± standard error over sections) and how many sections it won; then per
-controller the median exposure product (EV), grey level, clipped share and gain over all recorded frames.
+controller the median exposure product (EV), grey level, clipped share and gain over all recorded frames; then the
+VO margin table of the report (each run's worst frame pair) over the pooled runs.
 
     .venv/bin/python benchmarks/eval_compare.py [REPORTS_DIR ...]     (default: reports; each holds eval/)
 
@@ -65,6 +66,11 @@ def main() -> int:
         median_gain_db=("gain_db", "median"))
     print()
     print(stats.round(2).to_string())
+    # VO margin over the pooled runs: each run's worst frame pair (tracked inliers), runs tracked at stricter thresholds
+    from expoctl.report import vo_margin_table
+
+    print()
+    print(vo_margin_table(load(specs, "runs")))
     return 0
 
 
