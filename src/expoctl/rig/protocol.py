@@ -69,21 +69,14 @@ class PerturbationConfig:
         for name in ("max_fraction", "zero_gain_threshold_db", "excursion_probability"):
             if name in d:
                 kw[name] = _number(d[name], f"{key}.{name}")
-        if "zero_gain_add_db" in d:
-            v = d["zero_gain_add_db"]
-            if not isinstance(v, (list, tuple)) or len(v) != 2:
-                raise ConfigError(f"{key}.zero_gain_add_db", f"expected [low_db, high_db], got {v!r}")
-            kw["zero_gain_add_db"] = (_number(v[0], f"{key}.zero_gain_add_db"), _number(v[1], f"{key}.zero_gain_add_db"))
+        for name, unit in (("zero_gain_add_db", "db"), ("excursion_ev", "ev")):
+            if name in d:
+                kw[name] = _pair(d[name], f"{key}.{name}", unit)
         if "zero_gain_add_in_down_quadrants" in d:
             v = d["zero_gain_add_in_down_quadrants"]
             if not isinstance(v, bool):
                 raise ConfigError(f"{key}.zero_gain_add_in_down_quadrants", f"expected true/false, got {v!r}")
             kw["zero_gain_add_in_down_quadrants"] = v
-        if "excursion_ev" in d:
-            v = d["excursion_ev"]
-            if not isinstance(v, (list, tuple)) or len(v) != 2:
-                raise ConfigError(f"{key}.excursion_ev", f"expected [low_ev, high_ev], got {v!r}")
-            kw["excursion_ev"] = (_number(v[0], f"{key}.excursion_ev"), _number(v[1], f"{key}.excursion_ev"))
         if "excursion_frames" in d:
             v = d["excursion_frames"]
             if isinstance(v, bool) or not isinstance(v, int):
@@ -164,6 +157,12 @@ def perturb(reference: Settings, frame_index: int, seed: int, cfg: PerturbationC
     else:
         gain_db = reference.gain_db * (1.0 + gain_sign * cfg.max_fraction * u_gain)
     return Settings(float(gain_db), float(exposure_us)).clamped()
+
+
+def _pair(v, key: str, unit: str) -> tuple[float, float]:
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise ConfigError(key, f"expected [low_{unit}, high_{unit}], got {v!r}")
+    return _number(v[0], key), _number(v[1], key)
 
 
 def _number(v, key: str) -> float:
