@@ -3,8 +3,10 @@
 Every controller of an evaluation drives the same windows with the same seeds, so per dynamic section the minimum NFM
 of a controller and of AG+AE form a pair. This prints, per city and front end, the mean minimum NFM of each controller,
 the paired difference to AG+AE (mean ± standard error over sections) and how many sections it won; then per
-controller the median exposure product (EV), grey level, clipped share and gain over all recorded frames; then the
-VO margin table of the report (each run's worst frame pair) over the pooled runs.
+controller the median exposure product (EV), grey level, clipped share and gain over all recorded frames; then how
+deep each controller's worst transition goes (mean dynamic-section minimum ORB NFM over mean static-section median,
+next to the paper's Table I, where ORB-SLAM2 lost track with AG+AE at 0.09 and kept it with theirs at 0.16); then
+the VO margin table of the report (each run's worst frame pair) over the pooled runs.
 
     .venv/bin/python benchmarks/eval_compare.py [REPORTS_DIR ...]     (default: reports; each holds eval/)
 
@@ -21,6 +23,9 @@ import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
+# Tomasi et al. Table I (London validation, ORB): static median, dynamic median, dynamic minimum NFM, averaged over
+# sequences; ORB-SLAM2 tracked 0/6 runs with AG+AE and 6/6 with their network (Table III)
+PAPER_ORB = {"AG+AE (paper)": (593, 393, 54), "ours (paper)": (600, 395, 98)}
 
 
 def load(specs: list[str], table: str) -> pd.DataFrame:
@@ -37,9 +42,29 @@ def load(specs: list[str], table: str) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True)
 
 
+def transition_depth(sections: pd.DataFrame) -> str:
+    """Per city and controller: mean static median, mean dynamic median and mean dynamic minimum ORB NFM over
+    sections, and the last over the first (how far the worst frame pair of a transition falls below open-road
+    matching), with the paper's validation figures for scale."""
+    rows = [f"{'city':10s} {'controller':16s} {'static median':>13s} {'dyn median':>10s} {'dyn min':>8s} "
+            f"{'min / static':>12s}"]
+    for split in ("validation", "test"):
+        for ctrl in sorted(sections["controller"].unique()):
+            x = sections[(sections["route_split"] == split) & (sections["controller"] == ctrl)]
+            st, dy = x[x["section"] == "static"], x[x["section"] == "dynamic"]
+            if st.empty or dy.empty:
+                continue
+            s_med, d_med, d_min = st["median_nfm_orb"].mean(), dy["median_nfm_orb"].mean(), dy["min_nfm_orb"].mean()
+            rows.append(f"{split:10s} {ctrl:16s} {s_med:13.0f} {d_med:10.0f} {d_min:8.0f} {d_min / s_med:12.3f}")
+    for name, (s_med, d_med, d_min) in PAPER_ORB.items():
+        rows.append(f"{'London':10s} {name:16s} {s_med:13d} {d_med:10d} {d_min:8d} {d_min / s_med:12.3f}")
+    return "\n".join(rows)
+
+
 def main() -> int:
     specs = sys.argv[1:] or [str(ROOT / "reports")]
-    sections = load(specs, "sections")
+    all_sections = load(specs, "sections")
+    sections = all_sections
     sections = sections[sections["section"] == "dynamic"].set_index(["route_split", "sequence", "section_id"])
     ref = sections[sections["controller"] == "agae"]
     if ref.empty:
@@ -66,6 +91,8 @@ def main() -> int:
         median_gain_db=("gain_db", "median"))
     print()
     print(stats.round(2).to_string())
+    print()
+    print(transition_depth(all_sections))
     # VO margin over the pooled runs: each run's worst frame pair (tracked inliers), runs tracked at stricter thresholds
     from expoctl.report import vo_margin_table
 
