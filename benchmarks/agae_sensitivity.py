@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -36,6 +34,7 @@ from agae_calibration import AUTHORS, EV_PER_DB, step_stats  # noqa: E402
 from expoctl.errors import ConfigError, InputError  # noqa: E402
 from expoctl.evaluate import evaluate  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
+from bench_meta import run_metadata  # noqa: E402
 from stages.compose import compose_config  # noqa: E402
 
 
@@ -111,8 +110,7 @@ def main() -> int:
     print(f"authors' Blackfly S AG+AE steps: median {AUTHORS['median'][0]}–{AUTHORS['median'][1]}, "
           f"p99 {AUTHORS['p99'][0]}–{AUTHORS['p99'][1]}, max ~{AUTHORS['max']} EV")
     write_json({"overrides": list(args.overrides), "vo_threshold": vo_threshold, "variants": variants,
-                "authors": AUTHORS, "seconds": round(time.time() - t_start, 1), "cpu_count": os.cpu_count(),
-                "python": platform.python_version()}, args.out)
+                "authors": AUTHORS, "seconds": round(time.time() - t_start, 1), **run_metadata()}, args.out)
     print(f"wrote {args.out}")
     return 0
 

@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -42,6 +40,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX  # noqa: E402
 from expoctl.features.pipeline import make_frontend  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
+from bench_meta import run_metadata  # noqa: E402
 from expoctl.rig import exposure_sweep as xs  # noqa: E402
 from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
@@ -226,9 +225,7 @@ def main() -> int:
     print_tables(parts, gain, FRONTENDS)
     plot(parts, gain, FRONTENDS, args.figure)
     write_json({"city": args.city, "size": [args.width, args.height], "step_ev": args.step_ev, "seed": args.seed,
-                "exposure": parts, "gain": gain, "seconds": round(seconds, 1), "cpu_count": os.cpu_count(),
-                "load_average_1min": os.getloadavg()[0], "python": platform.python_version(),
-                "command": "benchmarks/exposure_response.py " + " ".join(sys.argv[1:])}, args.out)
+                "exposure": parts, "gain": gain, "seconds": round(seconds, 1), **run_metadata()}, args.out)
     print(f"wrote {args.out} and {args.figure}")
     return 0
 

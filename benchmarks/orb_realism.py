@@ -17,8 +17,6 @@ Prints a table and writes benchmarks/results/orb_realism.json.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -34,6 +32,7 @@ from expoctl.controllers.registry import make_controller  # noqa: E402
 from expoctl.features.orb import OrbFrontEnd  # noqa: E402
 from expoctl.features.pipeline import rgb_to_grey  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
+from bench_meta import run_metadata  # noqa: E402
 from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
 
@@ -112,9 +111,7 @@ def main() -> int:
                 if s:
                     print(f"{r['size']:>8} {name:22s} {kind:8s} {s['pairs']:5d} {s['p5']:5.0f} {s['p25']:5.0f} "
                           f"{s['median']:6.0f} {s['p75']:5.0f} {s['p95']:5.0f} {s['share_in_spec_range']:8.0%}")
-    write_json({"spec_range": SPEC_RANGE, "results": rows, "cpu_count": os.cpu_count(),
-                "load_average_1min": os.getloadavg()[0], "python": platform.python_version(),
-                "command": "benchmarks/orb_realism.py " + " ".join(sys.argv[1:])}, args.out)
+    write_json({"spec_range": SPEC_RANGE, "results": rows, **run_metadata()}, args.out)
     print(f"wrote {args.out}")
     return 0
 

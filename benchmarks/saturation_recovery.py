@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -41,6 +39,7 @@ from expoctl.controllers.base import Settings  # noqa: E402
 from expoctl.controllers.learned import LearnedController  # noqa: E402
 from expoctl.controllers.registry import make_controller  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
+from bench_meta import run_metadata  # noqa: E402
 from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
 
@@ -159,9 +158,7 @@ def main() -> int:
     print(f"(final = offset from AG+AE's level over the last {LAST} frames, EV; step = mean EV per frame over the "
           f"first {FIRST}; sat = clipped share of the last frame) {seconds:.0f} s")
     write_json({"city": "train", "traversal": TRAVERSAL, "size": [args.width, args.height], "frames": args.frames,
-                "offsets_ev": args.offsets, **results, "seconds": round(seconds, 1), "cpu_count": os.cpu_count(),
-                "load_average_1min": os.getloadavg()[0], "python": platform.python_version(),
-                "command": "benchmarks/saturation_recovery.py " + " ".join(sys.argv[1:])}, args.out)
+                "offsets_ev": args.offsets, **results, "seconds": round(seconds, 1), **run_metadata()}, args.out)
     print(f"wrote {args.out}")
     return 0
 
