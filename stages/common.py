@@ -38,7 +38,7 @@ RESOLVED_CONFIG = PROJECT_ROOT / "configs" / "resolved.yaml"
 EXPERIMENT_NAME = "expoctl"
 
 #: Data-collection iterations run as stages `<name>_iter<N>`, N = 2 … LAST_ITERATION (conf/config.yaml `iteration<N>`
-#: blocks). The final model, which evaluate drives, is the last iteration's.
+#: blocks). The final model, which evaluate drives, is the one select_model chooses among them (paths.final_model).
 LAST_ITERATION = 3
 
 #: The keys of configs/resolved.yaml each stage reads. dvc.yaml declares exactly these as the stage's params
@@ -51,8 +51,11 @@ STAGE_KEYS: dict[str, list[str]] = {
     "samples": ["samples", "paths.frames", "paths.labels", "paths.samples"],
     "train": ["seed", "model", "train", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
               "paths.reports_dir"],
-    "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate",
-                 f"iteration{LAST_ITERATION}.paths.model",
+    # select_model reads every iteration's enabled flag and model path: the candidates
+    "select_model": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "select_model",
+                     "paths.model", "paths.final_model", "paths.frames", "paths.reports_dir"]
+                    + [f"iteration{n}.{k}" for n in range(2, LAST_ITERATION + 1) for k in ("enabled", "paths.model")],
+    "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "paths.final_model",
                  "paths.frames", "paths.reports_dir"],
     "report": ["report", "paths.reports_dir"],
 }

@@ -17,21 +17,20 @@ from pathlib import Path
 import numpy as np
 
 from expoctl.evaluate import evaluate, metrics_summary, write_outputs
-from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
+from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
 
 
 def final_model_config(cfg: dict) -> dict:
-    """The learned controller under evaluation is the pipeline's final model: the last iteration's (which is the
-    previous iteration's when that one is disabled, see stages/train.py)."""
-    final = cfg[f"iteration{LAST_ITERATION}"]["paths"]["model"]
-    return {**cfg, "paths": {**cfg["paths"], "model": final}}
+    """The learned controller under evaluation is the pipeline's final model, `paths.final_model`: the network the
+    select_model stage chose among the iterations' (stages/select_model.py)."""
+    return {**cfg, "paths": {**cfg["paths"], "model": cfg["paths"]["final_model"]}}
 
 
 def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
-    if f"iteration{LAST_ITERATION}" in cfg:
+    if "final_model" in cfg.get("paths", {}):
         cfg = final_model_config(cfg)
     t0 = time.perf_counter()
     result = evaluate(cfg, root, progress=sys.stderr.isatty())

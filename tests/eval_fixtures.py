@@ -102,10 +102,54 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
                      "min_section_frames": 3, "vo": {"min_inliers": 8, "n_features": 500}, "thumb_width": 48,
                      "thumb_span_s": 1.0, "n_jobs": n_jobs},
         "report": {"strip_split": "test", "strip_portal": "exit", "strip_columns": 4},
-        "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt", "reports_dir": "reports"},
-        # the evaluate stage drives the pipeline's final model, the last iteration's path (here the one fixture model)
-        "iteration3": {"enabled": True, "paths": {"model": "models/controller.pt"}},
+        # the evaluate stage drives the pipeline's final model (select_model's choice; here the one fixture model)
+        "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt", "reports_dir": "reports",
+                  "final_model": "models/controller.pt"},
     }
+
+
+def constant_network(src, dst, gain_db: float, exposure_us: float, onnx: bool = False):
+    """A copy of the checkpoint at `src` whose output ignores the image: always (gain_db, exposure_us); with `onnx`
+    also its ONNX export beside it."""
+    import torch
+
+    from expoctl.camera.ranges import exposure_to_norm, gain_to_norm
+    from expoctl.train import TrainConfig, TrainResult, checkpoint_dict, export_onnx, load_checkpoint
+
+    model, ckpt = load_checkpoint(src)
+    out = model.head[-1]
+    with torch.no_grad():
+        out.weight.zero_()
+        out.bias.copy_(torch.tensor([float(gain_to_norm(gain_db)), float(exposure_to_norm(exposure_us))]))
+    torch.save(checkpoint_dict(TrainResult(model, 0, 0, [], {}), model.cfg, TrainConfig(), ckpt["store_hw"], 0), dst)
+    if onnx:
+        export_onnx(model.eval(), dst.with_suffix(".onnx"))
+    return dst
+
+
+def selection_project(root) -> tuple[dict, list]:
+    """The fixture project plus a small train city, a one-window `select_model` plan and two constant networks:
+    a well-exposing one (iteration 1) and one stuck in saturation (iteration 2). Returns (config, candidates)."""
+    from pathlib import Path
+
+    from expoctl.model_selection import Candidate
+
+    root = Path(root)
+    cfg = make_fixture_project(root, controllers=["agae", "learned"])
+    short = {"dynamic_before_s": 0.3, "dynamic_after_s": 0.3}
+    cfg["world"]["cities"]["train"] = {"base": "train", "textures": {"tile_px": 256}, "traversal": short}
+    cfg["select_model"] = {"window": "portal", "before_s": 0.6, "after_s": 0.6, "windows": [1]}  # tunnel 0's exit
+    cfg["evaluate"]["render_size"] = [160, 120]  # at 96×72 the train city's textures give ORB almost nothing
+    models = root / "models"
+    # iteration 1 holds a daylight-sized setting (AG+AE settles at ~140 µs, 0 dB on this window's open road);
+    # iteration 2 (the later one, which the paper would keep) is stuck at the longest exposure and highest gain
+    good = constant_network(models / "controller.pt", models / "good.pt", 0.0, 150.0, onnx=True)
+    white = constant_network(models / "controller.pt", models / "white.pt", 30.0, 30000.0, onnx=True)
+    # the same two as the pipeline's iterations (for the stage); iteration 3 is off, so not a candidate
+    cfg["paths"].update(model="models/good.pt", final_model="models/controller_final.pt")
+    cfg["iteration2"] = {"enabled": True, "paths": {"model": "models/white.pt"}}
+    cfg["iteration3"] = {"enabled": False, "paths": {"model": "models/white.pt"}}
+    return cfg, [Candidate("iteration1", 1, good), Candidate("iteration2", 2, white)]
 
 
 def use_real_or_test_sensor(monkeypatch) -> str:

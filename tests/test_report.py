@@ -75,3 +75,27 @@ def test_report_config_checks():
     assert ReportConfig.from_dict(None) == ReportConfig()
     with pytest.raises(ConfigError, match="report.strip_portal"):
         ReportConfig.from_dict({"strip_portal": "middle"})
+
+
+def test_selection_section_names_the_chosen_network_and_its_statistics():
+    from expoctl.report import selection_section
+
+    def stats(name, vo, orb, viso, off, clip, score=None):
+        return {"name": name, "vo_ok": vo, "vo_runs": 2, "dynamic_min_nfm": {"orb": orb, "viso": viso},
+                "median_offset_ev": off, "median_saturated_frac": clip, "score": score}
+
+    sel = {"chosen": "iteration1", "rule": "most windows with VO tracking, …", "city": "train", "reference": "agae",
+           "windows": [{"sequence": "select-train-t300-w00"}, {"sequence": "select-train-t300-w01"}],
+           "scores": [stats("iteration1", 2, 210.4, 300.0, 1.04, 0.02, 1.0),
+                      stats("iteration2", 0, 0.0, None, 6.5, 1.0, 0.0)],
+           "reference_statistics": {**stats("agae", 2, 120.0, 280.0, None, 0.0), "score": None}}
+    md = "\n".join(selection_section(sel))
+    assert "The final model is **iteration1**'s network" in md
+    assert "select-train-t300-w00, select-train-t300-w01" in md
+    assert "| **iteration1** | 2/2 | 210 | 300 | +1.0 | 2 % | 1.00 |" in md
+    assert "| iteration2 | 0/2 | 0 | — | +6.5 | 100 % | 0.00 |" in md
+    assert "| agae | 2/2 | 120 | 280 | — | 0 % | — |" in md
+    # the disabled stage: one line, no table
+    md = selection_section({"chosen": "iteration2", "rule": "select_model.enabled is false", "scores": []})
+    assert md == ["## Which network was evaluated", "",
+                  "The final model is **iteration2**'s network (select_model.enabled is false).", ""]

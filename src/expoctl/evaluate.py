@@ -64,10 +64,11 @@ class RunJob:
     cfg: dict = field(repr=False)
     sumlog: dict[str, SumLogParams] = field(repr=False)
     model_path: str | None = None
+    label: str = ""  # names the run instead of `controller` when several runs of a window share one (model selection)
 
     @property
     def run_id(self) -> str:
-        return f"{self.window.sequence}-{self.controller}"
+        return f"{self.window.sequence}-{self.label or self.controller}"
 
 
 @dataclass
@@ -87,49 +88,60 @@ class EvaluationResult:
 def plan_windows(cfg: dict, project_root: str | os.PathLike = ".") -> list[Window]:
     """Every window of the evaluation, in order (loads the cities' geometry, renders nothing)."""
     from expoctl.rig.closed_loop import RigConfig
-    from expoctl.rig.collect import _base_seed, _city_name, _load_city_cached, derive_seed
 
     ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
     rig = RigConfig.from_dict(cfg.get("rig"))
+    windows: list[Window] = []
+    for split in ROUTE_SPLITS:
+        plan = ecfg.splits.get(split)
+        if plan is not None:
+            windows += city_windows(cfg, project_root, split, split, plan, f"evaluate.splits.{split}", rig.fps,
+                                    ecfg.warmup_frames)
+    if not windows:
+        raise ConfigError("evaluate.splits", "plans no window (give validation and/or test a plan)")
+    return windows
+
+
+def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_key: str, plan: SplitPlan,
+                 plan_key: str, fps: float, warmup_frames: int) -> list[Window]:
+    """The windows `plan` asks for on `world.cities.<city_key>`, labelled `label` (their route_split; it also seeds
+    the traversals and noise, so two labels never share a window). `plan_key` is the config key errors name."""
+    from expoctl.rig.collect import _base_seed, _city_name, _load_city_cached, derive_seed
+
     base_seed = _base_seed(cfg)
     world = cfg.get("world") or {}
     city_dir = world.get("city_dir")
     if city_dir is not None:
         city_dir = str((Path(project_root) / city_dir).resolve())
     cities = world.get("cities") or {}
+    if city_key not in cities:
+        raise ConfigError(f"world.cities.{city_key}", f"missing: {plan_key} needs a city")
+    spec = cities[city_key]
+    name = _city_name(spec, city_dir, f"world.cities.{city_key}")
+    city = _load_city_cached(spec, city_dir)
+    if not city.tunnel_spans():
+        raise ConfigError(f"world.cities.{city_key}", f"city {name!r} has no tunnel: nothing to drive windows around")
+    tseed = derive_seed(base_seed, "evaluate-traversal", label)
     windows: list[Window] = []
-    for split in ROUTE_SPLITS:
-        plan = ecfg.splits.get(split)
-        if plan is None:
-            continue
-        if split not in cities:
-            raise ConfigError(f"world.cities.{split}", f"missing: evaluate.splits.{split} needs a city")
-        spec = cities[split]
-        name = _city_name(spec, city_dir, f"world.cities.{split}")
-        city = _load_city_cached(spec, city_dir)
-        if not city.tunnel_spans():
-            raise ConfigError(f"world.cities.{split}", f"city {name!r} has no tunnel: nothing to evaluate windows around")
-        tseed = derive_seed(base_seed, "evaluate-traversal", split)
-        for k in range(plan.n_traversals):
-            index = plan.first_traversal + k
-            lap = city.traversal(index, None, rig.fps, tseed)
-            n = 2 * len(lap.timestamps_ns)  # two laps: every window fits whole somewhere
-            traj = city.traversal(index, n, rig.fps, tseed)
-            spans = _windows_of(traj.portal_times_s, plan, rig.fps, n, ecfg.warmup_frames)
-            chosen = range(len(spans)) if plan.windows is None else plan.windows
-            for w in chosen:
-                if w >= len(spans):
-                    raise ConfigError(f"evaluate.splits.{split}.windows",
-                                      f"window {w} does not exist: city {name!r} has {len(spans)} {plan.window} windows")
-                label, start, stop = spans[w]
-                windows.append(Window(split, spec, city_dir, name, index, tseed, n, w, label, start, stop,
-                                      derive_seed(base_seed, "evaluate", split, name, index, w)))
-    if not windows:
-        raise ConfigError("evaluate.splits", "plans no window (give validation and/or test a plan)")
+    for k in range(plan.n_traversals):
+        index = plan.first_traversal + k
+        lap = city.traversal(index, None, fps, tseed)
+        n = 2 * len(lap.timestamps_ns)  # two laps: every window fits whole somewhere
+        traj = city.traversal(index, n, fps, tseed)
+        spans = _windows_of(traj.portal_times_s, plan, fps, n, warmup_frames, plan_key)
+        chosen = range(len(spans)) if plan.windows is None else plan.windows
+        for w in chosen:
+            if w >= len(spans):
+                raise ConfigError(f"{plan_key}.windows",
+                                  f"window {w} does not exist: city {name!r} has {len(spans)} {plan.window} windows")
+            wlabel, start, stop = spans[w]
+            windows.append(Window(label, spec, city_dir, name, index, tseed, n, w, wlabel, start, stop,
+                                  derive_seed(base_seed, "evaluate", label, name, index, w)))
     return windows
 
 
-def _windows_of(portals: list, plan: SplitPlan, fps: float, n: int, warmup: int) -> list[tuple[str, int, int]]:
+def _windows_of(portals: list, plan: SplitPlan, fps: float, n: int, warmup: int,
+                plan_key: str | None = None) -> list[tuple[str, int, int]]:
     """(label, start, stop) per window in route order: the first occurrence with room for the warm-up before it."""
     tunnels = sorted({ti for _, ti, _ in portals})
     wanted: list[tuple[str, list]] = []
@@ -151,7 +163,7 @@ def _windows_of(portals: list, plan: SplitPlan, fps: float, n: int, warmup: int)
                 out.append((label, start, stop))
                 break
         else:
-            raise ConfigError(f"evaluate.splits.{plan.name}", f"no room for the {label} window (before_s/after_s too "
+            raise ConfigError(plan_key or f"evaluate.splits.{plan.name}", f"no room for the {label} window (before_s/after_s too "
                               "long for the route?)")
     return out
 

@@ -81,7 +81,7 @@ class EvaluateConfig:
         if not isinstance(splits, dict) or not splits:
             raise ConfigError(f"{key}.splits", f"must map route split (validation, test) → plan, got {splits!r}")
         _no_unknown(splits, set(ROUTE_SPLITS), f"{key}.splits")
-        kw["splits"] = {s: _split(s, splits[s], f"{key}.splits.{s}") for s in ROUTE_SPLITS if s in splits}
+        kw["splits"] = {s: split_plan_from_dict(s, splits[s], f"{key}.splits.{s}") for s in ROUTE_SPLITS if s in splits}
         for name, lo in (("warmup_frames", 0), ("sumlog_pairs", 1), ("min_section_frames", 1), ("thumb_width", 16),
                          ("thumb_every", 1), ("n_jobs", 1)):
             if name in d:
@@ -117,7 +117,8 @@ class EvaluateConfig:
         return cls(**kw)
 
 
-def _split(name: str, d: Any, key: str) -> SplitPlan:
+def split_plan_from_dict(name: str, d: Any, key: str) -> SplitPlan:
+    """A window plan (`evaluate.splits.<name>`, or `select_model`'s own) from its mapping at config key `key`."""
     if not isinstance(d, dict):
         raise ConfigError(key, f"must be a mapping, got {d!r}")
     _no_unknown(d, {"first_traversal", "n_traversals", "window", "before_s", "after_s", "windows"}, key)

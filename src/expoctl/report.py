@@ -216,6 +216,31 @@ def headline(metrics: dict, runs: pd.DataFrame | None = None) -> list[str]:
     return out
 
 
+def selection_section(sel: dict) -> list[str]:
+    """Markdown for reports/select_model.json: which iteration's network was evaluated, and why."""
+    md = ["## Which network was evaluated", "",
+          f"The final model is **{sel['chosen']}**'s network ({sel['rule']})."]
+    if not sel.get("scores"):
+        return md + [""]
+    windows = ", ".join(w["sequence"] for w in sel.get("windows", []))
+    ref = sel.get("reference") or "the reference"
+    md += [f"Every candidate drove the `{sel['city']}` city in closed loop ({windows}), which the evaluation "
+           "never drives:", "",
+           f"| network | VO tracked | dynamic min NFM, ORB | dynamic min NFM, libviso2 | EV above {ref} | clipped "
+           "(median) | score |", "|---|---:|---:|---:|---:|---:|---:|"]
+    rows = list(sel["scores"]) + ([sel["reference_statistics"]] if sel.get("reference_statistics") else [])
+    for s in rows:
+        d = s["dynamic_min_nfm"]
+        name = f"**{s['name']}**" if s["name"] == sel["chosen"] else s["name"]
+        off = s.get("median_offset_ev")
+        score = s.get("score")
+        clip = s.get("median_saturated_frac")
+        md.append(f"| {name} | {s['vo_ok']}/{s['vo_runs']} | {_fmt(d['orb'])} | {_fmt(d['viso'])} | "
+                  f"{'—' if off is None else f'{off:+.1f}'} | {'—' if clip is None else f'{100 * clip:.0f} %'} | "
+                  f"{'—' if score is None else f'{score:.2f}'} |")
+    return md + [""]
+
+
 def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = None) -> dict[str, Path]:
     """Write reports/results.md and reports/figures/*.png; return the written paths by name."""
     rcfg = rcfg or ReportConfig()
@@ -249,6 +274,12 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
            f"{PAPER_DYNAMIC['agae'][1]}, minimum {PAPER_DYNAMIC['agae'][2]} / {PAPER_DYNAMIC['agae'][3]}; ours median "
            f"{PAPER_DYNAMIC['learned'][0]} / {PAPER_DYNAMIC['learned'][1]}, minimum {PAPER_DYNAMIC['learned'][2]} / "
            f"{PAPER_DYNAMIC['learned'][3]} (ORB / libviso2).", ""]
+    sel_path = reports_dir / "select_model.json"
+    if sel_path.is_file():  # written by the select_model stage (absent when evaluate ran on its own)
+        try:
+            md += selection_section(json.loads(sel_path.read_text()))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise InputError(f"{sel_path}: not a model-selection report ({exc})") from None
     for num, split in (("I", "validation"), ("II", "test")):
         if split not in metrics:
             continue

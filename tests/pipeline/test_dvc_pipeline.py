@@ -18,7 +18,8 @@ def _ran(output: str) -> set[str]:
 
 ITERATION2 = {"collect_iter2", "ingest_iter2", "features_iter2", "labels_iter2", "samples_iter2", "train_iter2"}
 ITERATION3 = {name.replace("_iter2", "_iter3") for name in ITERATION2}
-ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", "train", "evaluate", "report"}
+ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", "train", "select_model", "evaluate",
+               "report"}
               | ITERATION2 | ITERATION3)
 
 
@@ -35,7 +36,8 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     for out in ("data/features.parquet", "data/matches.parquet", "data/labels.parquet", "data/samples.parquet",
                 "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md",
                 "models/controller_iter2.pt", "reports/iter2/train.json", "models/controller_iter3.pt",
-                "reports/iter3/train.json", "reports/metrics.json",
+                "reports/iter3/train.json", "models/controller_final.pt", "models/controller_final.onnx",
+                "reports/select_model.json", "reports/metrics.json",
                 "reports/eval/frames.parquet", "reports/results.md"):
         assert (p.root / out).is_file(), out
     metrics = json.loads((p.root / "reports" / "metrics.json").read_text())
@@ -55,6 +57,13 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     frames3 = pd.read_parquet(p.root / "data" / "iter3" / "frames.parquet")
     assert set(frames2["sequence"]) < set(frames3["sequence"])
     assert frames3["sequence"].nunique() == frames2["sequence"].nunique() + 1
+    # select_model drove all three iterations' networks and AG+AE; the final model is the chosen one's bytes
+    selection = json.loads((p.root / "reports" / "select_model.json").read_text())
+    assert [c["name"] for c in selection["candidates"]] == ["iteration1", "iteration2", "iteration3"]
+    assert [s["name"] for s in selection["scores"]] == ["iteration1", "iteration2", "iteration3"]
+    assert selection["reference_statistics"]["name"] == "agae" and len(selection["runs"]) == 4
+    chosen = next(c for c in selection["candidates"] if c["name"] == selection["chosen"])
+    assert (p.root / "models" / "controller_final.pt").read_bytes() == (p.root / chosen["path"]).read_bytes()
     assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
     assert p.stage_runs(children=True) == {"evaluate": 7 * 2}  # one per (controller, city), for the MLflow UI
 
@@ -64,10 +73,12 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     # Switching iteration 3 off re-runs exactly the iteration-3 stages; the final model is then iteration 2's.
     p.set_overrides(["scale=fixture", "iteration3.enabled=false"])
     third = p.dvc("repro")
-    assert _ran(third.stdout) == {"compose", "evaluate", "report"} | ITERATION3, third.stdout
+    assert _ran(third.stdout) == {"compose", "select_model", "evaluate", "report"} | ITERATION3, third.stdout
     model2 = (p.root / "models" / "controller_iter2.pt").read_bytes()
     assert (p.root / "models" / "controller_iter3.pt").read_bytes() == model2
     assert pd.read_parquet(p.root / "data" / "iter3" / "frames.parquet").equals(frames2)
+    selection = json.loads((p.root / "reports" / "select_model.json").read_text())
+    assert [c["name"] for c in selection["candidates"]] == ["iteration1", "iteration2"]
 
     # A key no stage reads except compose: only compose re-runs (its output changes, but no stage's keys do).
     p.set_overrides(["scale=fixture", "iteration3.enabled=false", "+unused_note=hello"])
@@ -77,7 +88,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     p.set_overrides(["scale=fixture", "iteration3.enabled=false", "+unused_note=hello", "report.strip_columns=4"])
     assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
     runs = p.stage_runs()
-    assert runs["report"] == 3 and runs["evaluate"] == 2
+    assert runs["report"] == 3 and runs["evaluate"] == 2 and runs["select_model"] == 2
     assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter2"] == 1 and runs["train_iter3"] == 2
 
 

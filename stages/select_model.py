@@ -1,0 +1,107 @@
+"""select_model stage: every iteration's network drives the training city in closed loop and the best one becomes the
+pipeline's final model, `paths.final_model` (+ its .onnx), which evaluate drives (expoctl.model_selection).
+
+Candidates: iteration 1's network and that of every enabled later iteration (a disabled iteration's model is a copy
+of the previous one). With `select_model.enabled: false` the final model is the last candidate's, as in the paper,
+and nothing is driven. reports/select_model.json records the candidates, their closed-loop statistics and the choice.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import shutil
+import sys
+from pathlib import Path
+
+from expoctl.errors import InputError
+from expoctl.model_selection import Candidate, SelectConfig, select_model
+from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
+
+log = logging.getLogger(__name__)
+
+RULE = ("most windows with VO tracking, then the highest mean over ORB and libviso2-style of the dynamic-section "
+        "minimum NFM relative to the best candidate's, then the later iteration")
+
+
+def candidates(cfg: dict, root: Path) -> list[Candidate]:
+    out = [Candidate("iteration1", 1, root / cfg["paths"]["model"])]
+    for n in range(2, LAST_ITERATION + 1):
+        block = cfg[f"iteration{n}"]
+        if block.get("enabled", True):
+            out.append(Candidate(f"iteration{n}", n, root / block["paths"]["model"]))
+    return out
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
+    from expoctl.io import atomic_path, write_json
+
+    root = Path(project_root or PROJECT_ROOT)
+    scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigError before any work
+    cands = candidates(cfg, root)
+    for c in cands:
+        for p in (c.path, c.path.with_suffix(".onnx")):
+            if not p.is_file():
+                raise InputError(f"{p}: the {c.name} network is missing (run its train stage first)")
+    if scfg.enabled:
+        result = select_model(cfg, cands, root, progress=sys.stderr.isatty())
+        chosen, scores, reference, seconds = result.chosen, result.scores, result.reference, result.seconds
+        windows = [{"sequence": w.sequence, "label": w.label, "start": w.start, "stop": w.stop}
+                   for w in result.windows]
+        runs = [] if result.runs.empty else result.runs[["run_id", "candidate", "sequence", "vo_success",
+                                                         "vo_failed_at", "vo_min_inliers"]].to_dict("records")
+        rule = RULE if scores else "one candidate: nothing to choose between"
+    else:
+        chosen, scores, reference, seconds, windows, runs = cands[-1], [], None, 0.0, [], []
+        rule = "select_model.enabled is false: the last iteration's network (the paper's choice)"
+    final = root / cfg["paths"]["final_model"]
+    for src, dst in ((chosen.path, final), (chosen.path.with_suffix(".onnx"), final.with_suffix(".onnx"))):
+        with atomic_path(dst) as tmp:
+            shutil.copyfile(src, tmp)
+    report = {
+        "chosen": chosen.name,
+        "final_model": cfg["paths"]["final_model"],
+        "rule": rule,
+        "city": scfg.city,
+        "reference": scfg.reference if scores else None,
+        "candidates": [{"name": c.name, "iteration": c.iteration, "path": str(c.path.relative_to(root))
+                        if c.path.is_relative_to(root) else str(c.path), "sha256": _sha256(c.path)} for c in cands],
+        "scores": scores,
+        "reference_statistics": reference,
+        "windows": windows,
+        "runs": runs,
+        "seconds": seconds,
+    }
+    out = root / cfg["paths"]["reports_dir"] / "select_model.json"
+    write_json(report, out)
+    tracker.log_params({"chosen": chosen.name})
+    metrics = {"seconds": seconds, "chosen_iteration": chosen.iteration}
+    for s in scores + ([reference] if reference else []):
+        metrics[f"{s['name']}.vo_ok"] = s["vo_ok"]
+        metrics[f"{s['name']}.median_saturated_frac"] = s["median_saturated_frac"]
+        for fe, v in s["dynamic_min_nfm"].items():
+            if v is not None:
+                metrics[f"{s['name']}.dynamic_min_nfm.{fe}"] = v
+        for k in ("score", "median_offset_ev"):
+            if s.get(k) is not None:
+                metrics[f"{s['name']}.{k}"] = s[k]
+    tracker.log_metrics(metrics)
+    tracker.log_artifact(out)
+    for s in scores:
+        d = s["dynamic_min_nfm"]
+        log.info("%-11s VO %d/%d, dynamic min NFM ORB %s viso %s, score %.3f, %s EV from %s, clipped %.0f %%",
+                 s["name"], s["vo_ok"], s["vo_runs"], _fmt(d["orb"]), _fmt(d["viso"]), s["score"],
+                 _fmt(s.get("median_offset_ev"), "+.2f"), scfg.reference, 100 * (s["median_saturated_frac"] or 0))
+    log.info("final model: %s → %s (%s)", chosen.name, final, rule)
+
+
+def _fmt(v, spec: str = ".0f") -> str:
+    return "—" if v is None else format(v, spec)
+
+
+if __name__ == "__main__":
+    stage_main("select_model", run)

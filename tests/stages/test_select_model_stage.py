@@ -1,0 +1,85 @@
+"""The select_model stage: candidates from the iteration blocks, the chosen network copied to paths.final_model,
+reports/select_model.json; enabled: false keeps the last iteration's network; a missing candidate stops cleanly."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from eval_fixtures import selection_project, use_real_or_test_sensor
+
+from expoctl.errors import InputError
+
+
+class FakeTracker:
+    def __init__(self):
+        self.metrics, self.params, self.artifacts = {}, {}, []
+
+    def log_params(self, p):
+        self.params.update(p)
+
+    def log_metrics(self, m, step=None):
+        self.metrics.update(m)
+
+    def log_artifact(self, path, artifact_path=None):
+        self.artifacts.append(str(path))
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    use_real_or_test_sensor(monkeypatch)
+    cfg, _ = selection_project(tmp_path)
+    return tmp_path, cfg
+
+
+def test_stage_copies_the_chosen_network(project):
+    from stages import select_model as stage
+
+    root, cfg = project
+    tracker = FakeTracker()
+    stage.run(cfg, tracker, project_root=root)
+    models = root / "models"
+    assert (models / "controller_final.pt").read_bytes() == (models / "good.pt").read_bytes()
+    assert (models / "controller_final.onnx").read_bytes() == (models / "good.onnx").read_bytes()
+    report = json.loads((root / "reports/select_model.json").read_text())
+    assert report["chosen"] == "iteration1" and report["final_model"] == "models/controller_final.pt"
+    assert [c["name"] for c in report["candidates"]] == ["iteration1", "iteration2"]  # iteration 3 is off
+    assert [c["path"] for c in report["candidates"]] == ["models/good.pt", "models/white.pt"]
+    assert {r["candidate"] for r in report["runs"]} == {"iteration1", "iteration2", "agae"}
+    assert report["scores"][1]["median_saturated_frac"] == 1.0 and report["reference_statistics"]["name"] == "agae"
+    assert tracker.metrics["chosen_iteration"] == 1 and tracker.params == {"chosen": "iteration1"}
+    assert tracker.metrics["iteration2.vo_ok"] == 0 and tracker.metrics["iteration1.vo_ok"] == 1
+    assert str(root / "reports/select_model.json") in tracker.artifacts
+
+
+def test_disabled_keeps_the_last_iteration_without_driving(project):
+    from stages import select_model as stage
+
+    root, cfg = project
+    cfg["select_model"]["enabled"] = False
+    stage.run(cfg, FakeTracker(), project_root=root)
+    assert (root / "models/controller_final.pt").read_bytes() == (root / "models/white.pt").read_bytes()
+    report = json.loads((root / "reports/select_model.json").read_text())
+    assert report["chosen"] == "iteration2" and report["scores"] == [] and report["runs"] == []
+    assert "enabled is false" in report["rule"]
+
+
+def test_missing_onnx_stops_before_any_output(project):
+    from stages import select_model as stage
+
+    root, cfg = project
+    (root / "models/white.onnx").unlink()
+    with pytest.raises(InputError, match="white.onnx: the iteration2 network is missing"):
+        stage.run(cfg, FakeTracker(), project_root=root)
+    assert not (root / "models/controller_final.pt").exists()
+    assert not (root / "reports/select_model.json").exists()
+
+
+def test_bad_config_stops_before_any_output(project):
+    from stages import select_model as stage
+
+    root, cfg = project
+    cfg["select_model"]["city"] = "test"
+    with pytest.raises(InputError, match="select_model.city"):
+        stage.run(cfg, FakeTracker(), project_root=root)
+    assert not (root / "models/controller_final.pt").exists()
