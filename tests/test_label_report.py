@@ -10,6 +10,7 @@ from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import InputError
 from expoctl.label_report import compute_label_stats, flat_metrics, render_markdown
 from expoctl.labels import compute_labels
+from fake_tracker import FakeTracker
 
 
 def rig_tables(n_frames=8):
@@ -102,20 +103,6 @@ def test_no_labels_still_reports():
     assert stats["n_labelled_time_steps"] == 0
     assert "every window was incomplete" in stats["findings"][0]
     assert "# Label report" in render_markdown(stats)
-
-
-class FakeTracker:
-    def __init__(self):
-        self.params, self.metrics, self.artifacts = {}, {}, []
-
-    def log_params(self, params):
-        self.params.update(params)
-
-    def log_metrics(self, metrics, step=None):
-        self.metrics.update(metrics)
-
-    def log_artifact(self, path, artifact_path=None):
-        self.artifacts.append(str(path))
 
 
 def stage_cfg(tmp_path):

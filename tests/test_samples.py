@@ -6,6 +6,7 @@ import pytest
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.samples import COMBINATIONS, SampleConfig, build_samples, sample_id, summarise_samples
+from fake_tracker import FakeTracker
 
 
 def frames_table(n_frames, sequence="s", split="train", gap=()):
@@ -93,20 +94,6 @@ def test_bad_input():
         build_samples(frames.drop(index=5), labels)
     with pytest.raises(ConfigError, match="samples.metric"):
         SampleConfig.from_dict({"metric": "best"})
-
-
-class FakeTracker:
-    def __init__(self):
-        self.params, self.metrics = {}, {}
-
-    def log_params(self, params):
-        self.params.update(params)
-
-    def log_metrics(self, metrics, step=None):
-        self.metrics.update(metrics)
-
-    def log_artifact(self, path, artifact_path=None):
-        pass
 
 
 def test_samples_stage(tmp_path):

@@ -6,20 +6,7 @@ import yaml
 
 from expoctl.rig.raw import validate_raw_dir
 from stages import collect as stage
-
-
-class FakeTracker:
-    def __init__(self):
-        self.metrics, self.params, self.artifacts = {}, {}, []
-
-    def log_params(self, d):
-        self.params.update(d)
-
-    def log_metrics(self, d, step=None):
-        self.metrics.update(d)
-
-    def log_artifact(self, path):
-        self.artifacts.append(path)
+from fake_tracker import FakeTracker
 
 
 def test_stage_writes_raw_dir_and_logs(tmp_path, caplog):

@@ -11,20 +11,7 @@ from eval_fixtures import make_fixture_project, use_real_or_test_sensor
 from expoctl.errors import InputError
 from expoctl.evaluate_aggregate import validate_metrics
 from expoctl.evaluate_config import CONTROLLER_NAMES
-
-
-class FakeTracker:
-    def __init__(self):
-        self.metrics, self.params, self.artifacts = {}, {}, []
-
-    def log_params(self, p):
-        self.params.update(p)
-
-    def log_metrics(self, m, step=None):
-        self.metrics.update(m)
-
-    def log_artifact(self, path, artifact_path=None):
-        self.artifacts.append(str(path))
+from fake_tracker import FakeTracker
 
 
 @pytest.fixture(scope="module")

@@ -13,22 +13,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "features"))
 from test_pipeline import make_project  # noqa: E402  (the generated panning sequences of the pipeline tests)
 
 from stages import features as stage  # noqa: E402
+from fake_tracker import FakeTracker  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "features" / "default.yaml"
-
-
-class FakeTracker:
-    def __init__(self):
-        self.params, self.metrics = {}, {}
-
-    def log_params(self, d):
-        self.params.update(d)
-
-    def log_metrics(self, d, step=None):
-        self.metrics.update(d)
-
-    def log_artifact(self, path):
-        pass
 
 
 def _cfg(features):

@@ -9,20 +9,7 @@ import pytest
 from eval_fixtures import selection_project, use_real_or_test_sensor
 
 from expoctl.errors import InputError
-
-
-class FakeTracker:
-    def __init__(self):
-        self.metrics, self.params, self.artifacts = {}, {}, []
-
-    def log_params(self, p):
-        self.params.update(p)
-
-    def log_metrics(self, m, step=None):
-        self.metrics.update(m)
-
-    def log_artifact(self, path, artifact_path=None):
-        self.artifacts.append(str(path))
+from fake_tracker import FakeTracker
 
 
 @pytest.fixture
