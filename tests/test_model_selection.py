@@ -27,7 +27,6 @@ def test_config_defaults_and_plan():
 
 @pytest.mark.parametrize("d, key", [
     ({"city": "test"}, "select_model.city"),
-    ({"city": "validation"}, "select_model.city"),
     ({"city": ""}, "select_model.city"),
     ({"reference": "learned"}, "select_model.reference"),
     ({"reference": "oracle"}, "select_model.reference"),
@@ -151,6 +150,14 @@ def test_one_candidate_is_not_driven(tmp_path):
     cfg, cands = selection_project(tmp_path)
     result = select_model(cfg, cands[:1], tmp_path)
     assert result.chosen.name == "iteration1" and result.scores == [] and result.runs.empty
+
+
+def test_selection_traversals_must_not_be_evaluated_ones(tmp_path):
+    cfg, cands = selection_project(tmp_path)
+    cfg["select_model"] = {"city": "validation", "first_traversal": 0}  # evaluate drives validation traversal 0
+    with pytest.raises(ConfigError) as e:
+        select_model(cfg, cands, tmp_path)
+    assert e.value.key == "select_model.first_traversal" and "[0]" in str(e.value)
 
 
 def test_missing_candidate_stops_before_driving(tmp_path):

@@ -32,14 +32,15 @@ import pandas as pd
 
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluate_config import CONTROLLER_NAMES, FRONTENDS, ROUTE_SPLITS, EvaluateConfig, SplitPlan, \
-    split_plan_from_dict
+from expoctl.evaluate_config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
 SELECT_LABEL = "select"
 #: reference controllers the selection may drive beside the candidates (for its report; never chosen)
 REFERENCES = tuple(c for c in CONTROLLER_NAMES if c not in ("learned", "oracle"))
 SATURATED_DN = 250
+#: the one city no stage before evaluate may see (the validation city already gives train its validation split)
+HELD_OUT_CITY = "test"
 
 _PLAN_KEYS = {"first_traversal", "n_traversals", "window", "before_s", "after_s", "windows"}
 
@@ -65,9 +66,9 @@ class SelectConfig:
         city = d.get("city", "train")
         if not isinstance(city, str) or not city:
             raise ConfigError(f"{key}.city", f"must name a world.cities entry, got {city!r}")
-        if city in ROUTE_SPLITS:
-            raise ConfigError(f"{key}.city", f"{city!r} is a held-out evaluation city: selecting on it would let "
-                              "the choice see the cities the result is reported on (use a training city, e.g. train)")
+        if city == HELD_OUT_CITY:
+            raise ConfigError(f"{key}.city", f"{city!r} is the held-out city: selecting on it would let the choice see "
+                              "the city the result is reported on (use train or validation)")
         reference = d.get("reference", "agae")
         if reference is not None and reference not in REFERENCES:
             raise ConfigError(f"{key}.reference", f"must be null or one of {list(REFERENCES)}, got {reference!r}")
@@ -176,6 +177,13 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
         return SelectionResult(candidates[0], [], None, pd.DataFrame(), pd.DataFrame(), [], 0.0)
     if scfg.reference is not None and scfg.reference in names:
         raise ConfigError("select_model.reference", f"{scfg.reference!r} is also a candidate's name")
+    evaluated = ecfg.splits.get(scfg.city)
+    if evaluated is not None:  # the same city as an evaluation split: its traversals must stay the evaluation's own
+        mine = set(range(scfg.plan.first_traversal, scfg.plan.first_traversal + scfg.plan.n_traversals))
+        theirs = set(range(evaluated.first_traversal, evaluated.first_traversal + evaluated.n_traversals))
+        if mine & theirs:
+            raise ConfigError("select_model.first_traversal", f"traversals {sorted(mine & theirs)} of the "
+                              f"{scfg.city} city are also evaluate.splits.{scfg.city}'s: choose disjoint ones")
     windows = city_windows(cfg, project_root, SELECT_LABEL, scfg.city, scfg.plan, "select_model", rig.fps,
                            ecfg.warmup_frames)
     sumlog = tune_sumlog_params(cfg, project_root, ecfg.sumlog_pairs)
