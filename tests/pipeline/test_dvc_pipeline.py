@@ -25,7 +25,8 @@ ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", 
 
 def test_repro_noop_and_per_key_rerun(project_copy):
     p = project_copy
-    p.set_overrides(["scale=fixture", "iteration3.enabled=true"])  # off by default; on here so the DAG runs it
+    # iteration 3 and the closed-loop model selection are off by default; on here so the DAG runs them
+    p.set_overrides(["scale=fixture", "iteration3.enabled=true", "select_model.enabled=true"])
     first = p.dvc("repro")
     assert _ran(first.stdout) == ALL_STAGES, first.stdout
     frames = pd.read_parquet(p.root / "data" / "frames.parquet")
@@ -71,7 +72,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert _ran(second.stdout) == set(), second.stdout
 
     # Switching iteration 3 off re-runs exactly the iteration-3 stages; the final model is then iteration 2's.
-    p.set_overrides(["scale=fixture", "iteration3.enabled=false"])
+    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true"])
     third = p.dvc("repro")
     assert _ran(third.stdout) == {"compose", "select_model", "evaluate", "report"} | ITERATION3, third.stdout
     model2 = (p.root / "models" / "controller_iter2.pt").read_bytes()
@@ -81,11 +82,12 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert [c["name"] for c in selection["candidates"]] == ["iteration1", "iteration2"]
 
     # A key no stage reads except compose: only compose re-runs (its output changes, but no stage's keys do).
-    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "+unused_note=hello"])
+    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true", "+unused_note=hello"])
     fourth = p.dvc("repro")
     assert _ran(fourth.stdout) == {"compose"}, fourth.stdout
     # A leaf key (the report's layout): compose and report only.
-    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "+unused_note=hello", "report.strip_columns=4"])
+    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true", "+unused_note=hello",
+                     "report.strip_columns=4"])
     assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
     runs = p.stage_runs()
     assert runs["report"] == 3 and runs["evaluate"] == 2 and runs["select_model"] == 2
