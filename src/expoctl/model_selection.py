@@ -3,10 +3,12 @@
 Why it exists: the paper keeps the last iteration's network. Measured here, a later iteration's network can settle at
 a saturated closed-loop fixed point that its open-loop validation loss does not show (README, Results: seed 2's
 iteration 2 scored the same validation loss as the sound networks, then ran +5.6 EV above AG+AE with 89 % of the
-pixels clipped and lost VO on 3 of 4 windows). Only driving the camera shows it. So every candidate network drives
-the simulated camera in closed loop, with the evaluate stage's protocol (warm-up, render size, sensor
-randomisation, both front ends, VO), over windows of a city the pipeline trains on, at traversals no other stage
-drives; the held-out validation and test cities stay unseen until evaluation.
+pixels clipped and lost VO on 3 of 4 windows). So every candidate network drives the simulated camera in closed
+loop, with the evaluate stage's protocol (warm-up, render size, sensor randomisation, both front ends, VO), over
+windows of the train or validation city (the latter already gives training its validation split) at traversals no
+other stage drives; the test city stays unseen until evaluation. Measured limit: over two traversals of either city
+seed 2's iteration 2 did not diverge (its divergence needs conditions those traversals lacked), so this stage did not
+catch it and is off by default (README, Results).
 
 The rule, lexicographic (`choose`):
 1. most windows on which VO keeps tracking;
