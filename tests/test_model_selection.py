@@ -19,7 +19,7 @@ from expoctl.model_selection import Candidate, SelectConfig, choose, run_statist
 
 def test_config_defaults_and_plan():
     c = SelectConfig.from_dict({})
-    assert c.enabled and c.city == "train" and c.reference == "agae"
+    assert not c.enabled and c.city == "train" and c.reference == "agae"
     assert c.plan.first_traversal == 300 and c.plan.n_traversals == 1 and c.plan.window == "passage"
     c = SelectConfig.from_dict({"first_traversal": 5, "window": "portal", "windows": [1], "reference": None})
     assert (c.plan.first_traversal, c.plan.window, c.plan.windows, c.reference) == (5, "portal", (1,), None)

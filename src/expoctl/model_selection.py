@@ -49,7 +49,7 @@ _PLAN_KEYS = {"first_traversal", "n_traversals", "window", "before_s", "after_s"
 
 @dataclass(frozen=True)
 class SelectConfig:
-    enabled: bool = True
+    enabled: bool = False  # as conf/select_model/default.yaml: the paper's last-iteration choice unless asked
     city: str = "train"
     plan: SplitPlan = SplitPlan(SELECT_LABEL, first_traversal=300, n_traversals=1)
     reference: str | None = "agae"
@@ -62,7 +62,7 @@ class SelectConfig:
             if k not in _PLAN_KEYS | {"enabled", "city", "reference"}:
                 raise ConfigError(f"{key}.{k}", f"unknown key (expected one of "
                                   f"{sorted(_PLAN_KEYS | {'enabled', 'city', 'reference'})})")
-        enabled = d.get("enabled", True)
+        enabled = d.get("enabled", False)
         if not isinstance(enabled, bool):
             raise ConfigError(f"{key}.enabled", f"must be true or false, got {enabled!r}")
         city = d.get("city", "train")
@@ -194,9 +194,8 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
         jobs += [RunJob(w, scfg.reference, cfg, sumlog, label=scfg.reference) for w in windows]
     rows, summaries = [], []
     for job, (r, s, _thumbs) in _run_jobs(jobs, ecfg.n_jobs, progress):
-        label = job.label
-        rows.extend({**row, "run_id": job.run_id, "candidate": label} for row in r)
-        summaries.append({**s, "run_id": job.run_id, "candidate": label})
+        rows.extend({**row, "candidate": job.label} for row in r)  # run_id is already job.run_id (named by label)
+        summaries.append({**s, "candidate": job.label})
     frames = add_section_ids(pd.DataFrame(rows))
     runs = pd.DataFrame(summaries).sort_values("run_id").reset_index(drop=True)
     sections = section_stats(frames, ecfg.min_section_frames)
