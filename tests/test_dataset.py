@@ -37,6 +37,17 @@ def test_batches_match_store_and_frames(syn):
     assert tr.frames.shape[0] <= 2 * 6 * 3
 
 
+def test_time_step_groups_the_camera_combinations_of_one_frame(syn):
+    sets = load_sample_sets_from_files(syn["samples"], syn["frames"], syn["images_dir"], 16, splits=("train", "test"))
+    samples = pd.read_parquet(syn["samples"])
+    for split, data in sets.items():
+        rows = samples[samples.split == split]
+        key = rows["sequence"].astype(str) + "/" + rows["frame_id"].astype(str)
+        same_key = key.to_numpy()[:, None] == key.to_numpy()[None, :]
+        assert np.array_equal(data.time_step[:, None] == data.time_step[None, :], same_key)
+        assert np.all(np.bincount(data.time_step) == 8)  # the 2³ combinations of every labelled step
+
+
 def test_log_exposure_scale_converts_planes_and_targets(syn):
     """samples.parquet holds linear-scaled targets; a log-scaled set carries both planes and targets in log (EV)."""
     lin = load_sample_sets_from_files(syn["samples"], syn["frames"], syn["images_dir"], 16)["train"]

@@ -11,7 +11,7 @@ from expoctl.dataset import load_sample_sets_from_files
 from expoctl.errors import ConfigError, InputError
 from expoctl.model import ModelConfig
 from expoctl.synthetic_data import make_synthetic_dataset
-from expoctl.train import (TrainConfig, checkpoint_dict, error_sums, export_onnx, fit, load_checkpoint,
+from expoctl.train import (TimeStepGroups, TrainConfig, checkpoint_dict, error_sums, export_onnx, fit, load_checkpoint,
                            hold_prediction, metrics_from_sums, predict, weighted_l1)
 
 TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
@@ -79,6 +79,52 @@ def test_train_subset_fixed_or_per_epoch(sets):
     assert fresh["n_distinct_train_samples"] > 0.5 * n
     with pytest.raises(ConfigError, match="train.train_subset"):
         TrainConfig.from_dict({"train_subset": "each"})
+
+
+def test_time_step_partners_are_other_combinations_of_the_same_step():
+    ids = [f"seqA/{t:06d}/c{a}{b}{c}" for t in range(3) for a in (1, 2) for b in (1, 2) for c in (1, 2)]
+    ids = ids[::-1] + ["seqB/000000/c111"]  # unsorted; the last time step has a single sample (a filtered table)
+    stem = np.array([i.rsplit("/", 1)[0] for i in ids])
+    groups = TimeStepGroups.from_keys(stem)
+    rows = np.repeat(np.arange(len(ids)), 200)
+    partners = groups.partners(rows, np.random.default_rng(0))
+    assert np.array_equal(stem[partners], stem[rows])
+    lone = ids.index("seqB/000000/c111")
+    assert np.all(partners[rows == lone] == lone)
+    for r in range(len(ids)):
+        if r == lone:
+            continue
+        drawn = set(partners[rows == r].tolist())
+        # uniform over the 7 other combinations: 200 draws miss one with probability 7·(6/7)^200 ≈ 3e-13
+        assert r not in drawn and len(drawn) == 7
+
+
+def test_consistency_weight_is_validated():
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="train.consistency_weight"):
+            TrainConfig.from_dict({"consistency_weight": bad})
+    with pytest.raises(ConfigError, match="train"):
+        TrainConfig.from_dict({"consistency_weight": "strong"})
+
+
+def _camera_spread(model, data) -> float:
+    """Mean over time steps of the range of the (gain, exposure) outputs across its camera combinations."""
+    pred = predict(model, data)
+    return float(np.mean([np.ptp(pred[data.time_step == s], axis=0).sum() for s in np.unique(data.time_step)]))
+
+
+def test_consistency_term_makes_outputs_agree_across_cameras(sets):
+    base = dict(lr=3e-3, batch_size=32, epochs=6, patience=6, num_threads=1)
+    plain = fit(TINY, TrainConfig(**base), sets["train"], sets["validation"], seed=2)
+    tied = fit(TINY, TrainConfig(**base, consistency_weight=5.0), sets["train"], sets["validation"], seed=2)
+    again = fit(TINY, TrainConfig(**base, consistency_weight=5.0), sets["train"], sets["validation"], seed=2)
+    for (k, a), b in zip(tied.model.state_dict().items(), again.model.state_dict().values()):
+        assert torch.equal(a, b), k  # partners are drawn reproducibly
+    # the samples of one time step share one label: the tied network's outputs spread less across its cameras
+    spread_plain = _camera_spread(plain.model, sets["validation"])
+    spread_tied = _camera_spread(tied.model, sets["validation"])
+    assert spread_tied < 0.5 * spread_plain, (spread_tied, spread_plain)
+    assert tied.metrics["beats_baseline"]
 
 
 def test_input_size_mismatch_is_a_config_error(sets):

@@ -41,6 +41,7 @@ class SampleSet:
     exposure_norm: torch.Tensor  # (S, 3) float32
     targets: torch.Tensor  # (S, 2) float32 [gain_norm, exposure_norm], exposure in `exposure_scale`
     sample_id: np.ndarray  # (S,)
+    time_step: np.ndarray  # (S,) int64 in 0 … T−1: equal values share (sequence, frame_id), hence one label
     store_hw: tuple[int, int]
     input_hw: tuple[int, int]
     exposure_scale: str = "linear"  # scaling of exposure_norm and targets[:, 1] (expoctl.camera.ranges)
@@ -150,6 +151,9 @@ def load_sample_sets(samples: pd.DataFrame, frames: pd.DataFrame, images_dir: st
             exposure_norm=torch.from_numpy(np.ascontiguousarray(e[sel])),
             targets=torch.from_numpy(np.ascontiguousarray(targets[sel])),
             sample_id=samples["sample_id"].to_numpy()[sel],
+            time_step=pd.MultiIndex.from_arrays([samples["sequence"].astype(str).to_numpy()[sel],
+                                                 samples["frame_id"].to_numpy(np.int64)[sel]]).factorize()[0]
+                                                 .astype(np.int64),
             store_hw=store_hw,
             input_hw=input_hw,
             exposure_scale=exposure_scale,

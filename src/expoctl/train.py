@@ -1,6 +1,17 @@
 """Training the controller network: Adam on the ε-weighted L1 loss, early stopping, best checkpoint, baselines.
 
 Loss (paper): L = ε·mean|Ĝ − G*| + (1 − ε)·mean|Ê − E*| on [0, 1]-scaled targets.
+
+Camera-consistency term (ours, `consistency_weight` λ > 0; 0 = the paper's loss): the eight camera combinations of
+one time step share one label, because the best settings for frame t+1 depend on the scene, not on which camera's
+frames the network looks at. Their inputs differ in the settings planes and in image brightness. The L1 loss alone
+lets a network that cannot yet read the scene sit near the hold predictor and move its output with its input
+settings; in closed loop, where the input is its own last output, that amplifies each step's bias
+(benchmarks/closed_loop_gain.py). With λ > 0 each global batch holds batch_size/2 time-step pairs: a drawn sample
+and a random other combination of the same time step (sharing the flip), and the loss adds
+λ·(ε·mean|Ĝ_a − Ĝ_b| + (1 − ε)·mean|Ê_a − Ê_b|), which is zero only for outputs that do not depend on the camera.
+Partners may lie outside a `max_train_samples` subset (same time step, same label). Same gradient steps and samples
+per epoch as λ = 0, so the cost per epoch is unchanged.
 Errors in physical units, as the deployed controller would see them (outputs clamped to [0, 1], then unscaled):
 gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The constant predictor is the per-output median
 of the training targets (the L1-optimal constant); the model's errors are reported next to it. A second, stronger
@@ -52,6 +63,7 @@ class TrainConfig:
     # size every epoch (same cost per epoch, but over the run the network sees most of the data)
     train_subset: str = "fixed"
     max_validation_samples: int | None = None
+    consistency_weight: float = 0.0  # λ of the camera-consistency term (module doc); 0 = the paper's loss
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
@@ -66,7 +78,7 @@ class TrainConfig:
             for k in ("batch_size", "epochs", "patience", "num_threads", "eval_batch_size"):
                 if k in d:
                     d[k] = int(d[k])
-            for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob"):
+            for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight"):
                 if k in d:
                     d[k] = float(d[k])
             for k in ("max_train_samples", "max_validation_samples"):
@@ -88,6 +100,8 @@ class TrainConfig:
             ("patience", self.patience >= 1, "must be ≥ 1"),
             ("min_delta", self.min_delta >= 0, "must be ≥ 0"),
             ("flip_prob", 0.0 <= self.flip_prob <= 1.0, "must be in [0, 1]"),
+            ("consistency_weight", math.isfinite(self.consistency_weight) and self.consistency_weight >= 0,
+             "must be a finite number ≥ 0"),
             ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
@@ -106,6 +120,36 @@ def weighted_l1(pred: torch.Tensor, target: torch.Tensor, epsilon: float) -> tor
     """ε·mean|Ĝ − G*| + (1 − ε)·mean|Ê − E*| (columns: gain, exposure)."""
     err = (pred - target).abs()
     return epsilon * err[:, 0].mean() + (1.0 - epsilon) * err[:, 1].mean()
+
+
+@dataclass(frozen=True)
+class TimeStepGroups:
+    """Which samples share a time step (`SampleSet.time_step`), for drawing consistency partners."""
+
+    group: np.ndarray  # (S,) time-step index of each sample, 0 … T−1
+    order: np.ndarray  # samples sorted by time step (stable)
+    starts: np.ndarray  # (T,) first position in `order` of each time step
+    counts: np.ndarray  # (T,) samples per time step
+    position: np.ndarray  # (S,) position of each sample inside its time step
+
+    @classmethod
+    def from_keys(cls, time_step) -> "TimeStepGroups":
+        _, group = np.unique(np.asarray(time_step), return_inverse=True)
+        group = group.astype(np.int64).reshape(-1)
+        order = np.argsort(group, kind="stable")
+        counts = np.bincount(group)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        position = np.empty(len(group), np.int64)
+        position[order] = np.arange(len(group)) - np.repeat(starts, counts)
+        return cls(group, order, starts, counts, position)
+
+    def partners(self, rows: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """For each of `rows`, a uniformly random *other* sample of its time step (itself if it is alone)."""
+        rows = np.asarray(rows, np.int64)
+        g = self.group[rows]
+        n = self.counts[g]
+        shift = np.where(n > 1, rng.integers(1, np.maximum(n, 2)), 0)  # 1 … n−1: never the row itself
+        return self.order[self.starts[g] + (self.position[rows] + shift) % n]
 
 
 def error_sums(pred_norm: np.ndarray, target_norm: np.ndarray, epsilon: float,
@@ -229,6 +273,8 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
 
     best = (math.inf, -1, None)
     seen = np.zeros(len(train), bool)  # which training samples any epoch drew
+    groups = TimeStepGroups.from_keys(train.time_step) if cfg.consistency_weight > 0 else None
+    partner_rng = np.random.default_rng([seed, 104729, rank])  # partners differ per process, reproducibly
     history: list[dict] = []
     n_bad = 0
     total_train_time = 0.0
@@ -248,8 +294,18 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
             if len(perm[glob]) < 2 * world:
                 break  # batch norm needs ≥ 2 samples per process; drop a tiny remainder
             rows, flip = perm[glob][rank::world], flips[glob][rank::world]
-            x, y = train.batch(rows, flip)
-            loss = weighted_l1(net(x), y, cfg.epsilon)
+            if groups is None:
+                x, y = train.batch(rows, flip)
+                loss = weighted_l1(net(x), y, cfg.epsilon)
+            else:  # first half: drawn samples; second half: their partners, same flips (module doc)
+                half = len(rows) // 2
+                anchors, flip = rows[:half], flip[:half]
+                rows = np.concatenate([anchors, groups.partners(anchors, partner_rng)])
+                seen[rows] = True
+                x, y = train.batch(rows, torch.cat([flip, flip]))
+                pred = net(x)
+                loss = (weighted_l1(pred, y, cfg.epsilon)
+                        + cfg.consistency_weight * weighted_l1(pred[:half], pred[half:], cfg.epsilon))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
