@@ -68,6 +68,11 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
     assert p.stage_runs(children=True) == {"evaluate": 7 * 2}  # one per (controller, city), for the MLflow UI
 
+    # Bytecode that an import or a test run leaves in a source directory (another interpreter's, say) is not a
+    # change of the code: the second repro stays a no-op.
+    bytecode = p.root / "src" / "expoctl" / "world" / "__pycache__"
+    bytecode.mkdir(exist_ok=True)
+    (bytecode / "stray.cpython-399.pyc").write_bytes(b"\0" * 16)
     second = p.dvc("repro")
     assert _ran(second.stdout) == set(), second.stdout
 
