@@ -42,6 +42,7 @@ class SampleSet:
     targets: torch.Tensor  # (S, 2) float32 [gain_norm, exposure_norm], exposure in `exposure_scale`
     sample_id: np.ndarray  # (S,)
     time_step: np.ndarray  # (S,) int64 in 0 … T−1: equal values share (sequence, frame_id), hence one label
+    cameras: np.ndarray  # (S, 3) int64: camera (1 | 2) of the frames t, t−1, t−2
     store_hw: tuple[int, int]
     input_hw: tuple[int, int]
     exposure_scale: str = "linear"  # scaling of exposure_norm and targets[:, 1] (expoctl.camera.ranges)
@@ -154,6 +155,7 @@ def load_sample_sets(samples: pd.DataFrame, frames: pd.DataFrame, images_dir: st
             time_step=pd.MultiIndex.from_arrays([samples["sequence"].astype(str).to_numpy()[sel],
                                                  samples["frame_id"].to_numpy(np.int64)[sel]]).factorize()[0]
                                                  .astype(np.int64),
+            cameras=samples[["cam_t", "cam_t1", "cam_t2"]].to_numpy(np.int64)[sel],
             store_hw=store_hw,
             input_hw=input_hw,
             exposure_scale=exposure_scale,

@@ -16,7 +16,9 @@ Errors in physical units, as the deployed controller would see them (outputs cla
 gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The constant predictor is the per-output median
 of the training targets (the L1-optimal constant); the model's errors are reported next to it. A second, stronger
 reference is the hold predictor: "keep frame t's settings" (what a controller that never reacts would command). A
-network that has learnt anything about exposure must beat both.
+network that has learnt anything about exposure must beat both. The final metrics also carry the open-loop camera
+follow of the best model on the whole validation split (`expoctl.camera_follow`): how much its output moves with its
+input settings, the quantity that amplifies a per-step bias in closed loop.
 
 Distributed data parallel: when `torch.distributed` is initialised (torchrun), each process takes an interleaved
 share of every global batch (`batch_size` stays the global batch, so hyperparameters mean the same at any
@@ -38,6 +40,7 @@ import torch.distributed as dist
 from torch import nn
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
+from expoctl.camera_follow import camera_follow
 from expoctl.dataset import SampleSet
 from expoctl.errors import ConfigError
 from expoctl.model import ExposureNet, ModelConfig, count_macs, count_parameters
@@ -350,8 +353,11 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     base = metrics_from_sums(error_sums(base_pred, val_targets, cfg.epsilon, validation.exposure_scale), cfg.epsilon)
     hold = metrics_from_sums(error_sums(hold_prediction(validation, val_rows), val_targets, cfg.epsilon,
                                         validation.exposure_scale), cfg.epsilon)
+    follow = camera_follow(model, validation, cfg.eval_batch_size)  # the whole split: every c111/c222 pair
     metrics = {
         **{f"val_{k}": v for k, v in val.items()},
+        "val_follow": follow["follow"], "val_follow_bias_ev": follow["bias_ev"],
+        "val_implied_offset_ev": follow["implied_offset_ev"],
         **{f"baseline_val_{k}": v for k, v in base.items()},
         **{f"hold_val_{k}": v for k, v in hold.items()},
         "baseline_gain_norm": float(const[0]), "baseline_exposure_norm": float(const[1]),
