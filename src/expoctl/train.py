@@ -287,7 +287,8 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
             train_rows = _subset(len(train), cfg.max_train_samples, np.random.default_rng([seed, epoch]))
         gen = torch.Generator().manual_seed(seed * 7919 + epoch)  # identical on every rank
         perm = train_rows[torch.randperm(len(train_rows), generator=gen).numpy()]
-        seen[train_rows] = True
+        if groups is None:  # (with consistency pairs, the batches mark what they draw)
+            seen[train_rows] = True
         flips = torch.rand(len(perm), generator=gen) < cfg.flip_prob
         net.train()
         t0 = time.perf_counter()
