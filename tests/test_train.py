@@ -11,8 +11,8 @@ from expoctl.dataset import load_sample_sets_from_files
 from expoctl.errors import ConfigError, InputError
 from expoctl.model import ModelConfig
 from expoctl.synthetic_data import make_synthetic_dataset
-from expoctl.train import (TimeStepGroups, TrainConfig, checkpoint_dict, error_sums, export_onnx, fit, load_checkpoint,
-                           hold_prediction, metrics_from_sums, predict, weighted_l1)
+from expoctl.train import (TrainConfig, checkpoint_dict, complement_partners, error_sums, export_onnx, fit,
+                           hold_prediction, load_checkpoint, metrics_from_sums, predict, weighted_l1)
 
 TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
                    fc_widths=(16, 8, 8), dropout=0.1)
@@ -81,22 +81,20 @@ def test_train_subset_fixed_or_per_epoch(sets):
         TrainConfig.from_dict({"train_subset": "each"})
 
 
-def test_time_step_partners_are_other_combinations_of_the_same_step():
-    ids = [f"seqA/{t:06d}/c{a}{b}{c}" for t in range(3) for a in (1, 2) for b in (1, 2) for c in (1, 2)]
-    ids = ids[::-1] + ["seqB/000000/c111"]  # unsorted; the last time step has a single sample (a filtered table)
-    stem = np.array([i.rsplit("/", 1)[0] for i in ids])
-    groups = TimeStepGroups.from_keys(stem)
-    rows = np.repeat(np.arange(len(ids)), 200)
-    partners = groups.partners(rows, np.random.default_rng(0))
-    assert np.array_equal(stem[partners], stem[rows])
-    lone = ids.index("seqB/000000/c111")
-    assert np.all(partners[rows == lone] == lone)
-    for r in range(len(ids)):
-        if r == lone:
-            continue
-        drawn = set(partners[rows == r].tolist())
-        # uniform over the 7 other combinations: 200 draws miss one with probability 7·(6/7)^200 ≈ 3e-13
-        assert r not in drawn and len(drawn) == 7
+def test_complement_partner_takes_every_frame_from_the_other_camera():
+    cams = np.array([(a, b, c) for a in (1, 2) for b in (1, 2) for c in (1, 2)])
+    steps = [5, 9, 2]
+    time_step = np.repeat(steps, 8)
+    cameras = np.tile(cams, (3, 1))
+    order = np.random.default_rng(0).permutation(len(time_step))  # order of the table must not matter
+    time_step, cameras = time_step[order], cameras[order]
+    # a time step with only one sample (a filtered table): its own partner
+    time_step, cameras = np.append(time_step, 7), np.vstack([cameras, [1, 2, 1]])
+    partner = complement_partners(time_step, cameras)
+    assert np.array_equal(time_step[partner], time_step)
+    assert np.array_equal(cameras[partner[:-1]], 3 - cameras[:-1])
+    assert partner[-1] == len(time_step) - 1
+    assert np.array_equal(partner[partner], np.arange(len(time_step)))  # an involution: pairs, both ways
 
 
 def test_consistency_weight_is_validated():
