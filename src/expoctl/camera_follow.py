@@ -22,11 +22,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 from torch import nn
 
 from expoctl.camera.ranges import exposure_value_ev, norm_to_exposure, norm_to_gain
-from expoctl.dataset import SampleSet
+from expoctl.dataset import SampleSet, predict
 
 MIN_INPUT_DIFFERENCE_EV = 0.2  # pairs whose two cameras' settings differ less carry no slope information
 
@@ -49,15 +48,6 @@ def single_camera_pairs(data: SampleSet) -> tuple[np.ndarray, np.ndarray]:
     return i1, i2
 
 
-@torch.no_grad()
-def _output_norm(model: nn.Module, data: SampleSet, rows: np.ndarray, batch_size: int) -> np.ndarray:
-    was_training = model.training
-    model.eval()
-    out = [model(data.batch(rows[i:i + batch_size])[0]).numpy() for i in range(0, len(rows), batch_size)]
-    model.train(was_training)
-    return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
-
-
 def camera_follow(model: nn.Module, data: SampleSet, batch_size: int = 256,
                   min_input_difference_ev: float = MIN_INPUT_DIFFERENCE_EV) -> dict:
     """The probe of the module doc on `data` (raw outputs, eval mode). `follow` and `implied_offset_ev` are NaN when
@@ -68,7 +58,7 @@ def camera_follow(model: nn.Module, data: SampleSet, batch_size: int = 256,
     def input_ev(rows):
         return settings_ev(data.gain_norm[rows, 0].numpy(), data.exposure_norm[rows, 0].numpy(), scale)
 
-    o1, o2 = _output_norm(model, data, i1, batch_size), _output_norm(model, data, i2, batch_size)
+    o1, o2 = predict(model, data, batch_size, i1), predict(model, data, batch_size, i2)
     out1, out2 = settings_ev(o1[:, 0], o1[:, 1], scale), settings_ev(o2[:, 0], o2[:, 1], scale)
     in1, in2 = input_ev(i1), input_ev(i2)
     target = settings_ev(data.targets[i1, 0].numpy(), data.targets[i1, 1].numpy(), scale)

@@ -60,6 +60,17 @@ class SampleSet:
         return assemble_input(imgs, self.gain_norm[idx], self.exposure_norm[idx]), self.targets[idx]
 
 
+@torch.no_grad()
+def predict(model: torch.nn.Module, data: SampleSet, batch_size: int = 256, rows: np.ndarray | None = None) -> np.ndarray:
+    """Raw (unclamped) normalised network outputs for `rows` of `data` (default all), in eval mode."""
+    was_training = model.training
+    model.eval()
+    rows = np.arange(len(data)) if rows is None else rows
+    out = [model(data.batch(rows[i:i + batch_size])[0]).numpy() for i in range(0, len(rows), batch_size)]
+    model.train(was_training)
+    return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
+
+
 def _require(df: pd.DataFrame, cols, what: str) -> None:
     missing = [c for c in cols if c not in df.columns]
     if missing:

@@ -43,7 +43,7 @@ from torch import nn
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.camera_follow import camera_follow
-from expoctl.dataset import SampleSet
+from expoctl.dataset import SampleSet, predict
 from expoctl.errors import ConfigError
 from expoctl.model import ExposureNet, ModelConfig, count_macs, count_parameters
 from expoctl.preprocess import CHANNEL_NAMES
@@ -178,17 +178,6 @@ def _average_bn_buffers(model: nn.Module, world: int) -> None:
         if buf.dtype.is_floating_point and ("running_mean" in name or "running_var" in name):
             dist.all_reduce(buf)
             buf /= world
-
-
-@torch.no_grad()
-def predict(model: nn.Module, data: SampleSet, batch_size: int = 256, rows: np.ndarray | None = None) -> np.ndarray:
-    """Raw (unclamped) normalised predictions for `rows` (default all), eval mode."""
-    was_training = model.training
-    model.eval()
-    rows = np.arange(len(data)) if rows is None else rows
-    out = [model(data.batch(rows[i:i + batch_size])[0]).numpy() for i in range(0, len(rows), batch_size)]
-    model.train(was_training)
-    return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
 
 
 def evaluate(model: nn.Module, data: SampleSet, epsilon: float, batch_size: int = 256,

@@ -64,7 +64,8 @@ def test_stage_writes_model_onnx_report_and_logs_to_mlflow(tmp_path, mlflow_stor
     assert "final.baseline_val_exposure_mae_ev" in data.metrics and "final.improvement_gain_db" in data.metrics
     assert data.metrics["final.val_loss"] == pytest.approx(report["val_loss"])
     # the closed-loop amplification probe rides along (expoctl.camera_follow), in the report and in MLflow
-    assert math.isfinite(report["val_follow"]) and data.metrics["final.val_follow"] == pytest.approx(report["val_follow"])
+    assert math.isfinite(report["val_follow"])
+    assert data.metrics["final.val_follow"] == pytest.approx(report["val_follow"])
     exp = client.get_run(run_id).info.experiment_id
     models = mlflow.search_logged_models(experiment_ids=[exp], filter_string=f"source_run_id = '{run_id}'",
                                          output_format="list")
