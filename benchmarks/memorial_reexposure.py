@@ -12,8 +12,10 @@ black floor (≤ 20) in the real frame. Response curves:
   fit_srgb_offset   our sRGB curve + output pedestal, fitted to the recovered curve (what the simulator can run)
   fit_gamma_offset  power law (free gamma) + pedestal, fitted likewise
   fit_gamma_per_channel  a power law + pedestal per channel (`ChannelResponse`): the stack's channels have different
-                    curves (red γ ≈ 2.7, green ≈ 2.1, blue ≈ 2.3 with different pedestals: a film scan); runs through
-                    our sensor's linear chain here, but the simulator's 8-bit stage has one curve for all channels
+                    curves (red γ ≈ 2.7, green ≈ 2.1, blue ≈ 2.3 with different pedestals: a film scan). The
+                    simulator runs it as sensor config keys (`ChannelResponse.sensor_keys`: response_gamma_rgb,
+                    response_pedestal_rgb, white_balance_rgb); each row records them and checks that a `Sensor`
+                    built from them has exactly this model's raw → 8-bit table
   srgb_default      the sensor's configured sRGB curve as is (exposure scale fitted only)
   debevec_curve     the recovered curve itself: reference for how much error is the response model's
 The response is recovered from the non-plateau training brackets; the radiance is a Debevec log-average that gives
@@ -129,6 +131,12 @@ def main() -> int:
                "models": {}, "opencv_merge": {}}
         for name, (resp, x_fs, params) in models.items():
             lut = adc_code_lut(cfg, resp)
+            if hasattr(resp, "sensor_keys"):  # the simulator's own 8-bit stage, configured with the fit
+                keys = resp.sensor_keys()
+                as_sensor = Sensor(SensorConfig.from_dict({**cfg.to_dict(), **keys}), 1, 1)
+                codes = np.repeat(np.arange(cfg.adc_max_dn + 1)[:, None], 3, axis=1)
+                params = {**params, "sensor_keys": keys,
+                          "sensor_table_identical": bool(np.array_equal(as_sensor.raw_to_8bit(codes), lut))}
             for merge_name, rad in radiance.items():
                 if merge_name == "opencv" and name not in OPENCV_MERGE_MODELS:
                     continue
@@ -156,7 +164,7 @@ def main() -> int:
                     entry["local_shift_rmse_percent_noise_free"] = rmse_percent(np.rint(shifted), real, mask)
                     entry["local_shift_median_abs_px"] = float(np.nanmedian(np.abs(shifts)))
                 if merge_name == "masked":
-                    row["models"][name] = {**entry, **{p: (v if isinstance(v, list) else float(v))
+                    row["models"][name] = {**entry, **{p: (v if isinstance(v, (list, dict, bool)) else float(v))
                                                        for p, v in params.items()}}
                 else:
                     row["opencv_merge"][name] = entry
@@ -232,6 +240,9 @@ def main() -> int:
           f"{decomposition['after_per_code_tone_correction']:.2f} %; after per-32-px-block sub-pixel shifts "
           f"{decomposition['after_local_shift_32px_blocks']:.2f} % (median |shift| "
           f"{decomposition['local_shift_median_abs_px']:.2f} px); flat half {decomposition['flat_half']:.2f} %")
+    same = [r["models"]["fit_gamma_per_channel"]["sensor_table_identical"] for r in rows]
+    print(f"fit_gamma_per_channel as sensor config keys: the sensor's raw → 8-bit table equals the fit's in "
+          f"{sum(same)} of {len(same)} held-out brackets")
     print(f"bar (BorealHDR emulator): < {BAR_PERCENT} %; "
           + ", ".join(f"{m} {'passes' if med[m] < BAR_PERCENT else 'fails'}" for m in MODELS))
     write_json(result, args.out)

@@ -120,8 +120,8 @@ def main() -> int:
     traj = city.traversal(TRAVERSAL, None, rig.fps, args.seed)
     scene = RouteScene(city, traj, rig, render)
     sensor = make_sensors(sensor_cfg, render, 1, 0.0, args.seed)[0][0]
-    agae_cfg = dict(_conf("controllers")["agae"], response_curve=sensor_cfg["response_curve"],
-                    response_gamma=sensor_cfg["response_gamma"])
+    agae_cfg = dict(_conf("controllers")["agae"], **{k: v for k, v in sensor_cfg.items()  # resolve ${sensor.*}
+                                                      if k.startswith(("response_", "white_balance"))})
     t0 = time.perf_counter()
     results = {"starts": {}, "networks": {}}
     for name, start in start_frames(traj, args.frames).items():

@@ -130,8 +130,8 @@ def test_srgb_lut_matches_the_sensor_chain():
     cfg = SensorConfig()
     sensor = Sensor(cfg, 1, 1, seed=0)
     lut = adc_code_lut(cfg, ParametricResponse("srgb"))
-    codes = np.arange(cfg.adc_max_dn + 1, dtype=np.float32)
-    np.testing.assert_array_equal(lut[:, 0], sensor.raw_to_8bit(codes))
+    codes = np.repeat(np.arange(cfg.adc_max_dn + 1, dtype=np.float32)[:, None], 3, axis=1)
+    np.testing.assert_array_equal(lut, sensor.raw_to_8bit(codes))
     np.testing.assert_array_equal(lut[:, 0], lut[:, 2])
 
 

@@ -187,3 +187,23 @@ def test_bad_config_names_the_key(params, key):
     with pytest.raises(ConfigError) as e:
         AgAeController(params)
     assert e.value.key == key
+
+
+def test_meters_a_per_channel_response_channel_by_channel():
+    """Each channel encodes linear 18 % through its own curve (gammas, pedestals, white balance differ): an AE that
+    inverts the same per-channel response meters exactly the target, one that assumes sRGB does not."""
+    from expoctl.camera.response import Response
+
+    keys = {"response_curve": "gamma", "response_gamma_rgb": [2.8, 1.8, 2.4], "response_pedestal_rgb": [-0.1, 0.05, 0.1],
+            "white_balance_rgb": [1.0, 1.3, 0.8]}
+    resp = Response("gamma", keys["response_gamma_rgb"], keys["response_pedestal_rgb"], keys["white_balance_rgb"])
+    img = np.broadcast_to(resp.linear_to_8bit(np.full(3, 0.18)), (8, 8, 3)).copy()
+    assert len(set(img[0, 0].tolist())) == 3
+    assert AgAeController(keys).metered_mean(img) == pytest.approx(0.18, rel=0.02)  # 8-bit rounding
+    assert abs(AgAeController({}).metered_mean(img) / 0.18 - 1) > 0.1  # sRGB reads 0.206
+
+
+def test_bad_per_channel_response_key_is_named():
+    with pytest.raises(ConfigError) as e:
+        AgAeController({"white_balance_rgb": [1.0, -1.0, 1.0]})
+    assert e.value.key == "controllers.agae.white_balance_rgb"

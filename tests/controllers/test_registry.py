@@ -60,3 +60,15 @@ def test_register_extends_the_registry():
         assert make_controller("hold_test").name == "hold_test"
     finally:
         del CONTROLLERS["hold_test"]
+
+
+def test_agae_and_the_fixed_warm_up_meter_with_the_sensors_response():
+    """The composed config hands the sensor's response keys to AG+AE and to the fixed controller's warm-up AG+AE."""
+    from stages.compose import compose_config
+
+    cfg = compose_config(["sensor.response_curve=gamma", "sensor.response_gamma_rgb=[2.6,2.1,2.3]",
+                          "sensor.white_balance_rgb=[1.0,1.2,0.9]"])
+    for block in (cfg["controllers"]["agae"], cfg["controllers"]["fixed"]["agae"]):
+        assert block["response_curve"] == "gamma" and list(block["response_gamma_rgb"]) == [2.6, 2.1, 2.3]
+        assert list(block["white_balance_rgb"]) == [1.0, 1.2, 0.9]
+    make_controller("fixed", cfg["controllers"]["fixed"])  # builds (validates) with the per-channel keys

@@ -197,8 +197,8 @@ class TabulatedResponse:
 @dataclass(frozen=True)
 class ChannelResponse:
     """One parametric curve per colour channel, each after its own digital gain (white balance):
-    code_c = responses[c].code(gains[c]·x_c). Film and many camera pipelines have per-channel tone curves; our sensor's
-    8-bit stage applies one curve to all channels, so this is a calibration-side model (see `fit_parametric_response`).
+    code_c = responses[c].code(gains[c]·x_c). Film and many camera pipelines have per-channel tone curves. The
+    sensor's 8-bit stage has the same model as config keys (`sensor_keys`, `expoctl.camera.response`).
     """
 
     responses: tuple[ParametricResponse, ParametricResponse, ParametricResponse]
@@ -212,6 +212,16 @@ class ChannelResponse:
         for c in range(3):
             out[..., c] = self.responses[c].code(self.gains[c] * x[..., c])
         return out
+
+    def sensor_keys(self) -> dict:
+        """The sensor config keys (conf/sensor) that make `Sensor` deliver exactly this response: response_curve,
+        response_gamma_rgb, response_pedestal_rgb (the offsets) and white_balance_rgb (the gains)."""
+        curves = {r.curve for r in self.responses}
+        if len(curves) != 1:
+            raise ValueError(f"the sensor has one curve family for all channels, got {sorted(curves)}")
+        return {"response_curve": curves.pop(), "response_gamma_rgb": [float(r.gamma) for r in self.responses],
+                "response_pedestal_rgb": [float(r.offset) for r in self.responses],
+                "white_balance_rgb": [float(g) for g in self.gains]}
 
 
 def code_histogram(images: list[np.ndarray]) -> np.ndarray:

@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
-from expoctl.camera.response import Response
+from expoctl.camera.response import Response, response_from_config
 from expoctl.errors import ConfigError, InputError
 
 PLANCK_J_S = 6.62607015e-34
@@ -48,11 +48,15 @@ class SensorConfig:
     wavelength_nm: float = 555.0
     response_curve: str = "srgb"         # srgb | gamma | linear (expoctl.camera.response)
     response_gamma: float = 2.2          # only for response_curve: gamma
+    response_gamma_rgb: tuple[float, float, float] | None = None  # per-channel gammas (R, G, B); None = response_gamma
+    response_pedestal_rgb: tuple[float, float, float] = (0.0, 0.0, 0.0)  # output pedestal, units of the 8-bit range
+    white_balance_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)      # digital gain per channel before the curve
     poisson_exact_below: float = 10.0    # electrons; Gaussian shot-noise approximation above
 
     _POSITIVE = ("quantum_efficiency", "full_well_e", "f_number", "lens_transmission", "pixel_pitch_um",
                  "wavelength_nm", "response_gamma")
     _NON_NEGATIVE = ("read_noise_e", "prnu", "dsnu_e", "black_level_fraction", "poisson_exact_below")
+    _RGB = ("response_gamma_rgb", "response_pedestal_rgb", "white_balance_rgb")
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "sensor") -> "SensorConfig":
@@ -61,6 +65,9 @@ class SensorConfig:
         for k in d:
             if k not in known:
                 raise ConfigError(f"{key}.{k}", f"unknown key (known: {sorted(known)})")
+        for k in cls._RGB:  # YAML gives lists; the frozen config holds tuples (hashable); validate() checks them
+            if isinstance(d.get(k), list):
+                d[k] = tuple(d[k])
         try:
             cfg = cls(**d)
             cfg.validate(key)
@@ -90,8 +97,7 @@ class SensorConfig:
             raise ConfigError(f"{key}.black_level_fraction", f"must be below 0.5, got {self.black_level_fraction}")
         if self.prnu >= 0.5:
             raise ConfigError(f"{key}.prnu", f"must be below 0.5, got {self.prnu}")
-        if self.response_curve not in ("srgb", "gamma", "linear"):
-            raise ConfigError(f"{key}.response_curve", f"must be srgb, gamma or linear, got {self.response_curve!r}")
+        response_from_config(self.to_dict(), key)
 
     @property
     def adc_max_dn(self) -> int:
@@ -112,8 +118,16 @@ class SensorConfig:
         photon_energy_j = PLANCK_J_S * LIGHT_SPEED_M_S / (self.wavelength_nm * 1e-9)
         return illuminance_lux * area_m2 / (LUMENS_PER_WATT_555NM * photon_energy_j)
 
+    def response(self) -> Response:
+        return response_from_config(self.to_dict(), "sensor")
+
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Plain types (the per-channel tuples as lists), as sequence.yaml records the sensor."""
+        d = dataclasses.asdict(self)
+        for k in self._RGB:
+            if d[k] is not None:
+                d[k] = list(d[k])
+        return d
 
     def randomised(self, rng: np.random.Generator, amplitude: float) -> "SensorConfig":
         """A unit-to-unit variation: η, full well, read noise, PRNU, DSNU and black level each × (1 ± U[0, amplitude])."""
@@ -146,10 +160,11 @@ class Sensor:
         self._gain_map = (1.0 + cfg.prnu * fpn.standard_normal(shape)).astype(np.float32)
         self._dark_map = (cfg.dsnu_e * fpn.standard_normal(shape)).astype(np.float32)
         self._photons_per_cd_m2_us = np.float32(cfg.photons_per_cd_m2_s() * 1e-6)
-        self.response = Response(cfg.response_curve, cfg.response_gamma)
+        self.response = cfg.response()
         codes = np.arange(cfg.adc_max_dn + 1, dtype=np.float64)
         linear = (codes - cfg.black_level_dn) / (cfg.adc_max_dn - cfg.black_level_dn)
-        self._dn_to_8bit = self.response.linear_to_8bit(linear)
+        # (ADC codes, 3): one column per colour channel (equal columns for a channel-uniform response)
+        self._dn_to_8bit = np.ascontiguousarray(self.response.linear_to_8bit(np.repeat(linear[:, None], 3, axis=1)))
 
     def mean_electrons(self, luminance_cd_m2: np.ndarray, exposure_us: float) -> np.ndarray:
         """Expected collected electrons per pixel (before shot noise and clipping)."""
@@ -187,9 +202,12 @@ class Sensor:
     def raw_to_8bit(self, raw_dn: np.ndarray) -> np.ndarray:
         """Black-level subtraction, normalisation to the usable ADC range and the response curve → uint8 RGB.
 
-        Raw values are integers in [0, ADC max], so the whole chain is one lookup table over the ADC codes.
+        Raw values are integers in [0, ADC max], so the whole chain is one lookup table over the ADC codes, one
+        column per channel (raw_dn: (..., 3)).
         """
-        return self._dn_to_8bit[raw_dn.astype(np.int32)]
+        if raw_dn.ndim == 0 or raw_dn.shape[-1] != 3:
+            raise ValueError(f"raw_dn must have a last axis of 3 channels, got shape {raw_dn.shape}")
+        return np.take_along_axis(self._dn_to_8bit, raw_dn.astype(np.int32).reshape(-1, 3), axis=0).reshape(raw_dn.shape)
 
     def capture(self, luminance_cd_m2: np.ndarray, exposure_us: float, gain_db: float,
                 rng: np.random.Generator) -> np.ndarray:
@@ -275,10 +293,13 @@ def _capture_kernel(lum, gain_map, dark_map, z, z_small, scale, exact_below, rea
     out = np.empty(lum.shape, np.uint8)
     fl, fg, fd, fz, fo = lum.ravel(), gain_map.ravel(), dark_map.ravel(), z.ravel(), out.ravel()
     j = 0
-    for i in range(fl.size):
-        dn, j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
-                          black, adc_max)
-        fo[i] = lut[np.int32(dn)]
+    n_pixels = fl.size // 3
+    for p in range(n_pixels):  # C-order (H, W, 3): element 3·p + c is channel c of pixel p
+        for c in range(3):
+            i = 3 * p + c
+            dn, j = _pixel_dn(fl[i], fg[i], fd[i], fz[i], z_small, j, scale, exact_below, read_noise, full_well, k,
+                              black, adc_max)
+            fo[i] = lut[np.int32(dn), c]
     return out
 
 

@@ -26,7 +26,7 @@ from collections import deque
 import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
-from expoctl.camera.response import CURVES, Response
+from expoctl.camera.response import response_from_config
 from expoctl.controllers.base import Controller, Settings
 from expoctl.controllers.metrics import METERING_AREA_FRACTION, ResponseInverse, metered_linear_mean
 from expoctl.controllers.params import check_params, require
@@ -48,10 +48,13 @@ DEFAULTS: dict = {
     "gain_upper_db": GAIN_DB_MAX,
     "internal_latency_frames": 1,  # AE computes from the frame before the newest one
     "min_linear_mean": 1e-4,  # metering floor for black frames (keeps the log error finite)
-    # the response curve the AE inverts to meter linear light: keep equal to sensor.response_curve/_gamma
-    # (a real camera meters before gamma; we only see the delivered 8-bit image)
+    # the response the AE inverts to meter linear light: keep equal to the sensor's response keys (the config
+    # interpolates them; a real camera meters before gamma, we only see the delivered 8-bit image)
     "response_curve": "srgb",
     "response_gamma": 2.2,
+    "response_gamma_rgb": None,  # per channel [R, G, B] or None (expoctl.camera.response.response_from_config)
+    "response_pedestal_rgb": [0.0, 0.0, 0.0],
+    "white_balance_rgb": [1.0, 1.0, 1.0],
 }
 
 
@@ -99,8 +102,7 @@ def _validate(p: dict, prefix: str) -> None:
     )
     require(0 <= p["internal_latency_frames"] <= 10, k + "internal_latency_frames", "must be an integer in [0, 10]")
     require(0.0 < p["min_linear_mean"] < 1.0, k + "min_linear_mean", "must be in (0, 1)")
-    require(p["response_curve"] in CURVES, k + "response_curve", f"must be one of {list(CURVES)}")
-    require(p["response_gamma"] > 0.0, k + "response_gamma", "must be > 0")
+    response_from_config(p, prefix)  # ConfigError naming the response key
 
 
 class AgAeController(Controller):
@@ -119,7 +121,7 @@ class AgAeController(Controller):
         _validate(self.params, config_key)
         p = self.params
         if response_inverse is None:
-            response_inverse = Response(p["response_curve"], p["response_gamma"]).uint8_to_linear
+            response_inverse = response_from_config(p, config_key).uint8_to_linear
         self.response_inverse = response_inverse
         self.target_linear = p["target_grey_pct"] / 100.0 * 2.0 ** p["ev_compensation"]
         self._max_step_ln = p["max_step_ev"] * math.log(2.0)
