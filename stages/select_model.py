@@ -2,24 +2,32 @@
 pipeline's final model, `paths.final_model` (+ its .onnx), which evaluate drives (expoctl.model_selection).
 
 Candidates: iteration 1's network and that of every enabled later iteration (a disabled iteration's model is a copy
-of the previous one). With `select_model.enabled: false` the final model is the last candidate's, as in the paper,
-and nothing is driven. reports/select_model.json records the candidates, their closed-loop statistics and the choice.
+of the previous one). First the saturation probe (`select_model.probe`, on by default) drops every candidate with a
+saturated closed-loop fixed point (all stay if all fail). With `select_model.enabled: false` the final model is then
+the last remaining candidate's (the paper's choice when every candidate passes); with `enabled: true` the remaining
+ones drive the selection windows. reports/select_model.json records the candidates, the probe, the closed-loop
+statistics and the choice.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 import shutil
 import sys
+import time
 from pathlib import Path
 
 from expoctl.errors import InputError
-from expoctl.model_selection import Candidate, SelectConfig, select_model
+from expoctl.saturation_probe import summary_line
+from expoctl.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
 from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
 
+PROBE_RULE = ("the saturation probe drops candidates with a saturated closed-loop fixed point (some start ends with "
+              "at least select_model.probe.max_saturated_fraction of the frame clipped)")
 RULE = ("most windows with VO tracking, then the highest mean over ORB and libviso2-style of the dynamic-section "
         "minimum NFM relative to the best candidate's, then the later iteration")
 
@@ -47,8 +55,22 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         for p in (c.path, c.path.with_suffix(".onnx")):
             if not p.is_file():
                 raise InputError(f"{p}: the {c.name} network is missing (run its train stage first)")
+    probe = None
+    pool = cands
+    if scfg.probe.enabled and len(cands) > 1:
+        t0 = time.perf_counter()
+        results = probe_candidates(cfg, cands, root, scfg.probe)
+        pool = probe_filter(cands, results)
+        failed = [c.name for c in cands if not results[c.name]["passes"]]
+        probe = {"config": dataclasses.asdict(scfg.probe), "results": results, "failed": failed,
+                 "kept": [c.name for c in pool],
+                 "note": ("every candidate failed: all kept" if len(failed) == len(cands) else
+                          "candidates that failed are not chosen" if failed else "every candidate passed"),
+                 "seconds": round(time.perf_counter() - t0, 1)}
+        for c in cands:
+            log.info("probe %s", summary_line(c.name, results[c.name]))
     if scfg.enabled:
-        result = select_model(cfg, cands, root, progress=sys.stderr.isatty())
+        result = select_model(cfg, pool, root, progress=sys.stderr.isatty())
         chosen, scores, reference, seconds = result.chosen, result.scores, result.reference, result.seconds
         windows = [{"sequence": w.sequence, "label": w.label, "start": w.start, "stop": w.stop}
                    for w in result.windows]
@@ -56,8 +78,10 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
                                                          "vo_failed_at", "vo_min_inliers"]].to_dict("records")
         rule = RULE if scores else "one candidate: nothing to choose between"
     else:
-        chosen, scores, reference, seconds, windows, runs = cands[-1], [], None, 0.0, [], []
-        rule = "select_model.enabled is false: the last iteration's network (the paper's choice)"
+        chosen, scores, reference, seconds, windows, runs = pool[-1], [], None, 0.0, [], []
+        rule = "select_model.enabled is false: the last remaining iteration's network (the paper's choice)"
+    if probe is not None:
+        rule = f"{PROBE_RULE}; then {rule}"
     final = root / cfg["paths"]["final_model"]
     for src, dst in ((chosen.path, final), (chosen.path.with_suffix(".onnx"), final.with_suffix(".onnx"))):
         with atomic_path(dst) as tmp:
@@ -70,6 +94,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         "reference": scfg.reference if scores else None,
         "candidates": [{"name": c.name, "iteration": c.iteration, "path": str(c.path.relative_to(root))
                         if c.path.is_relative_to(root) else str(c.path), "sha256": _sha256(c.path)} for c in cands],
+        "probe": probe,
         "scores": scores,
         "reference_statistics": reference,
         "windows": windows,
@@ -80,6 +105,11 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     write_json(report, out)
     tracker.log_params({"chosen": chosen.name})
     metrics = {"seconds": seconds, "chosen_iteration": chosen.iteration}
+    if probe is not None:
+        metrics["probe_seconds"] = probe["seconds"]
+    for name, r in ((probe or {}).get("results") or {}).items():
+        metrics[f"{name}.probe_worst_saturated_frac"] = r["worst_saturated_frac"]
+        metrics[f"{name}.probe_passes"] = int(r["passes"])
     for s in scores + ([reference] if reference else []):
         metrics[f"{s['name']}.vo_ok"] = s["vo_ok"]
         metrics[f"{s['name']}.median_saturated_frac"] = s["median_saturated_frac"]

@@ -139,7 +139,8 @@ def selection_project(root) -> tuple[dict, list]:
     short = {"dynamic_before_s": 0.3, "dynamic_after_s": 0.3}
     cfg["world"]["cities"]["train"] = {"base": "train", "textures": {"tile_px": 256}, "traversal": short}
     cfg["select_model"] = {"enabled": True, "window": "portal", "before_s": 0.6, "after_s": 0.6,
-                           "windows": [1]}  # tunnel 0's exit
+                           "windows": [1],  # tunnel 0's exit
+                           "probe": {"frames": 6, "width": 64, "height": 48, "first_frames": 2, "last_frames": 2}}
     cfg["evaluate"]["render_size"] = [160, 120]  # at 96×72 the train city's textures give ORB almost nothing
     models = root / "models"
     # iteration 1 holds a daylight-sized setting (AG+AE settles at ~140 µs, 0 dB on this window's open road);

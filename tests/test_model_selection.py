@@ -165,3 +165,12 @@ def test_missing_candidate_stops_before_driving(tmp_path):
     cands[1].path.unlink()
     with pytest.raises(InputError, match="white.pt: the iteration2 network is missing"):
         select_model(cfg, cands, tmp_path)
+
+
+def test_probe_filter_keeps_the_passing_candidates_in_order_or_all_when_none_pass():
+    from expoctl.model_selection import probe_filter
+
+    cands = _cands(3)
+    res = {c.name: {"passes": ok} for c, ok in zip(cands, (True, False, True))}
+    assert probe_filter(cands, res) == [cands[0], cands[2]]
+    assert probe_filter(cands, {c.name: {"passes": False} for c in cands}) == cands

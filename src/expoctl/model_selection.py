@@ -10,7 +10,14 @@ other stage drives; the test city stays unseen until evaluation. Measured limit:
 seed 2's iteration 2 did not diverge (its divergence needs conditions those traversals lacked), so this stage did not
 catch it and is off by default (README, Results).
 
-The rule, lexicographic (`choose`):
+First, the saturation probe (`expoctl.saturation_probe`, `select_model.probe`, on by default and cheap: about a
+minute per candidate at 320×240): each candidate starts in closed loop from its AG+AE level and from +6 EV above it,
+on the open road and in a tunnel of the training city's traversal 900. A candidate that ends some start with ≥ 97 %
+of the frame clipped has a saturated fixed point and is dropped (`probe_filter`; if every candidate fails, all stay).
+Every network that diverged in the evaluation failed it; the default seed's final network passes (README, Results).
+With `enabled: false` the last remaining candidate is the final model (the paper's choice among those that pass).
+
+With `enabled: true` the remaining candidates then drive the selection windows; the rule, lexicographic (`choose`):
 1. most windows on which VO keeps tracking;
 2. the highest score: over the raw front ends (ORB, libviso2-style), the mean of the candidate's dynamic-section
    minimum NFM (mean over sections, as metrics.json) divided by the best candidate's — the paper's headline metric,
@@ -35,6 +42,7 @@ import pandas as pd
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
 from expoctl.evaluate_config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
+from expoctl.saturation_probe import ProbeConfig
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
 SELECT_LABEL = "select"
@@ -45,6 +53,7 @@ SATURATED_DN = 250
 HELD_OUT_CITY = "test"
 
 _PLAN_KEYS = {"first_traversal", "n_traversals", "window", "before_s", "after_s", "windows"}
+_KEYS = _PLAN_KEYS | {"enabled", "city", "reference", "probe"}
 
 
 @dataclass(frozen=True)
@@ -53,15 +62,15 @@ class SelectConfig:
     city: str = "train"
     plan: SplitPlan = SplitPlan(SELECT_LABEL, first_traversal=300, n_traversals=1)
     reference: str | None = "agae"
+    probe: ProbeConfig = ProbeConfig()
 
     @classmethod
     def from_dict(cls, d, key: str = "select_model") -> "SelectConfig":
         if not isinstance(d, dict):
             raise ConfigError(key, f"missing or not a mapping (got {d!r})")
         for k in d:
-            if k not in _PLAN_KEYS | {"enabled", "city", "reference"}:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of "
-                                  f"{sorted(_PLAN_KEYS | {'enabled', 'city', 'reference'})})")
+            if k not in _KEYS:
+                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(_KEYS)})")
         enabled = d.get("enabled", False)
         if not isinstance(enabled, bool):
             raise ConfigError(f"{key}.enabled", f"must be true or false, got {enabled!r}")
@@ -77,7 +86,10 @@ class SelectConfig:
         plan = split_plan_from_dict(SELECT_LABEL, {k: v for k, v in d.items() if k in _PLAN_KEYS}, key)
         if "first_traversal" not in d:
             plan = dataclasses.replace(plan, first_traversal=300)
-        return cls(enabled, city, plan, reference)
+        probe = ProbeConfig.from_dict(d.get("probe"), f"{key}.probe")
+        if probe.city == HELD_OUT_CITY:
+            raise ConfigError(f"{key}.probe.city", f"{probe.city!r} is the held-out city (use train or validation)")
+        return cls(enabled, city, plan, reference, probe)
 
 
 @dataclass(frozen=True)
@@ -148,6 +160,34 @@ def choose(candidates: Sequence[Candidate], scored: Sequence[dict]) -> Candidate
         raise ValueError("choose needs one score per candidate")
     ranked = sorted(zip(candidates, scored), key=lambda cs: (cs[1]["vo_ok"], cs[1]["score"], cs[0].iteration))
     return ranked[-1][0]
+
+
+# ---------------------------------------------------------------------------------------------------------- probe
+
+
+def probe_candidates(cfg: dict, candidates: Sequence[Candidate], project_root: str | os.PathLike = ".",
+                     pcfg: ProbeConfig | None = None) -> dict[str, dict]:
+    """The saturation probe's result for each candidate (`SaturationProbe.run`), each network built as evaluate
+    builds it (controllers.learned's keys with the candidate's checkpoint)."""
+    from expoctl.controllers.learned import register_learned
+    from expoctl.controllers.registry import make_controller
+    from expoctl.saturation_probe import make_probe, probe_all
+
+    pcfg = pcfg or SelectConfig.from_dict(cfg.get("select_model")).probe
+    for c in candidates:
+        if not Path(c.path).is_file():
+            raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
+    register_learned()
+    section = dict((cfg.get("controllers") or {}).get("learned") or {})
+    probe = make_probe(pcfg, cfg, project_root)
+    return probe_all(probe, {c.name: (lambda p=c.path: make_controller("learned", {**section, "checkpoint": str(p)}))
+                             for c in candidates})
+
+
+def probe_filter(candidates: Sequence[Candidate], results: dict[str, dict]) -> list[Candidate]:
+    """The candidates whose probe passed, in order; all of them when none passed (nothing better to choose)."""
+    passing = [c for c in candidates if results[c.name]["passes"]]
+    return passing or list(candidates)
 
 
 # ---------------------------------------------------------------------------------------------------------- driving

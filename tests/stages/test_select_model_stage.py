@@ -20,9 +20,11 @@ def project(tmp_path, monkeypatch):
 
 
 def test_stage_copies_the_chosen_network(project):
+    """The selection windows alone (probe off) reject the saturated network."""
     from stages import select_model as stage
 
     root, cfg = project
+    cfg["select_model"]["probe"]["enabled"] = False
     tracker = FakeTracker()
     stage.run(cfg, tracker, project_root=root)
     models = root / "models"
@@ -44,11 +46,34 @@ def test_disabled_keeps_the_last_iteration_without_driving(project):
 
     root, cfg = project
     cfg["select_model"]["enabled"] = False
+    cfg["select_model"]["probe"]["enabled"] = False
     stage.run(cfg, FakeTracker(), project_root=root)
     assert (root / "models/controller_final.pt").read_bytes() == (root / "models/white.pt").read_bytes()
     report = json.loads((root / "reports/select_model.json").read_text())
     assert report["chosen"] == "iteration2" and report["scores"] == [] and report["runs"] == []
-    assert "enabled is false" in report["rule"]
+    assert report["probe"] is None and "enabled is false" in report["rule"]
+
+
+def test_the_probe_drops_a_saturated_network_before_the_last_iteration_rule(project):
+    """Windows off (the default): without the probe the paper's rule keeps iteration 2, which is stuck at 30 ms and
+    30 dB; the probe ends every one of its starts with the whole frame clipped, so iteration 1 is the final model."""
+    from stages import select_model as stage
+
+    root, cfg = project
+    cfg["select_model"]["enabled"] = False
+    tracker = FakeTracker()
+    stage.run(cfg, tracker, project_root=root)
+    assert (root / "models/controller_final.pt").read_bytes() == (root / "models/good.pt").read_bytes()
+    report = json.loads((root / "reports/select_model.json").read_text())
+    probe = report["probe"]
+    assert report["chosen"] == "iteration1" and probe["failed"] == ["iteration2"] and probe["kept"] == ["iteration1"]
+    white, good = probe["results"]["iteration2"], probe["results"]["iteration1"]
+    assert white["worst_saturated_frac"] == 1.0 and not white["passes"]
+    assert all(r["final_saturated_frac"] == 1.0 for r in white["starts"]["open_road"])  # daylight at 30 ms, 30 dB
+    assert good["passes"] and good["worst_saturated_frac"] < 0.5
+    assert set(good["starts"]) == {"open_road", "tunnel"} and [r["k_ev"] for r in good["starts"]["tunnel"]] == [0, 6]
+    assert "saturation probe" in report["rule"] and report["runs"] == []
+    assert tracker.metrics["iteration2.probe_passes"] == 0 and tracker.metrics["iteration1.probe_passes"] == 1
 
 
 def test_missing_onnx_stops_before_any_output(project):
