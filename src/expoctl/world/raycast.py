@@ -12,12 +12,15 @@ Speed (all bit-identical to the straightforward code): the small per-ray helpers
 (`inline="always"`, numba IR level) because each call passed every array as ~9 scalars and returned a tuple through
 memory; blocks and props the ray cannot reach are rejected before their exact test (trace, `cull`). `trace` itself is
 not inlined: it is called twice per pixel, and inlining it quadrupled the compile time for ~5 % of render time.
+The per-segment products of a segment step that depend only on the ray origin (primary rays: the camera) or only on
+its direction (shadow rays: the sun) are computed once per frame (with_frame_terms) and read by trace.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from expoctl.world import route as rt
@@ -135,34 +138,75 @@ def _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best):
     return tmin, nu, nv, nw
 
 
+# Columns appended to a per-frame copy of the segment table (with_frame_terms): the products of a segment step that
+# depend only on the ray origin (primary rays share the camera's) or only on its direction (shadow rays share the sun's)
+T_O = rt.NCOL  # 5: local u, v, w of the origin; numerators of the end / start plane crossing times
+T_D = rt.NCOL + 5  # 5: local du, dv, dw of the direction; its dot products with the end / start plane normals
+T_NCOL = rt.NCOL + 10
+
+
 @njit(cache=True)
-def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull):
+def with_frame_terms(seg, ox, oy, oz, dx, dy, dz):
+    """The segment table plus, per segment, trace's origin terms for o and direction terms for d (T_O, T_D): the same
+    expressions trace evaluates at every segment step, so reading them instead gives bit-identical results. Kept in
+    the table itself, not in extra arrays, because trace is a real call and every array argument costs ~9 scalars."""
+    n = seg.shape[0]
+    out = np.empty((n, T_NCOL))
+    out[:, :rt.NCOL] = seg
+    for i in range(n):
+        out[i, T_O] = _dot(seg, i, rt.F, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        out[i, T_O + 1] = _dot(seg, i, rt.R, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        out[i, T_O + 2] = _dot(seg, i, rt.U, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        out[i, T_O + 3] = _dot(seg, i, rt.NE, seg[i, rt.P1] - ox, seg[i, rt.P1 + 1] - oy, seg[i, rt.P1 + 2] - oz)
+        out[i, T_O + 4] = _dot(seg, i, rt.NS, seg[i, 0] - ox, seg[i, 1] - oy, seg[i, 2] - oz)
+        out[i, T_D] = _dot(seg, i, rt.F, dx, dy, dz)
+        out[i, T_D + 1] = _dot(seg, i, rt.R, dx, dy, dz)
+        out[i, T_D + 2] = _dot(seg, i, rt.U, dx, dy, dz)
+        out[i, T_D + 3] = _dot(seg, i, rt.NE, dx, dy, dz)
+        out[i, T_D + 4] = _dot(seg, i, rt.NS, dx, dy, dz)
+    return out
+
+
+@njit(cache=True)
+def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use_d):
     """First hit along o + t·d. Returns (t, code, frame_seg, air_seg, air_inside, u, v, w, nu, nv, nw, mat).
-    cull: reject roadside blocks and props the ray cannot reach before their exact test (same result, faster)."""
+    cull: reject roadside blocks and props the ray cannot reach before their exact test (same result, faster).
+    use_o / use_d: read the origin / direction terms of each segment step from the columns T_O / T_D of seg (a
+    with_frame_terms table made for this o / d) instead of recomputing them: every primary ray of a frame shares the
+    camera origin and every shadow ray the sun direction (same numbers, fewer multiplications per step)."""
     nseg = seg.shape[0]
     i = i0
     inside = inside0
     t0 = 0.0
     for _ in range(4096):
-        ou = _dot(seg, i, rt.F, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
-        ov = _dot(seg, i, rt.R, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
-        ow = _dot(seg, i, rt.U, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
-        du = _dot(seg, i, rt.F, dx, dy, dz)
-        dv = _dot(seg, i, rt.R, dx, dy, dz)
-        dw = _dot(seg, i, rt.U, dx, dy, dz)
+        if use_o:
+            ou, ov, ow = seg[i, T_O], seg[i, T_O + 1], seg[i, T_O + 2]
+        else:
+            ou = _dot(seg, i, rt.F, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+            ov = _dot(seg, i, rt.R, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+            ow = _dot(seg, i, rt.U, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
+        if use_d:
+            du, dv, dw = seg[i, T_D], seg[i, T_D + 1], seg[i, T_D + 2]
+        else:
+            du = _dot(seg, i, rt.F, dx, dy, dz)
+            dv = _dot(seg, i, rt.R, dx, dy, dz)
+            dw = _dot(seg, i, rt.U, dx, dy, dz)
         # nothing above ztop: a rising ray above it sees only sky
         if dw > 0.0 and ow + t0 * dw > ztop:
             return INF, SKY, i, i, inside, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
         t_exit = INF
         dirn = 0
-        dn = _dot(seg, i, rt.NE, dx, dy, dz)
+        dn = seg[i, T_D + 3] if use_d else _dot(seg, i, rt.NE, dx, dy, dz)
         if dn > 1e-12:
-            te = _dot(seg, i, rt.NE, seg[i, rt.P1] - ox, seg[i, rt.P1 + 1] - oy, seg[i, rt.P1 + 2] - oz) / dn
+            num = seg[i, T_O + 3] if use_o else _dot(seg, i, rt.NE, seg[i, rt.P1] - ox, seg[i, rt.P1 + 1] - oy,
+                                                  seg[i, rt.P1 + 2] - oz)
+            te = num / dn
             if te < t_exit:
                 t_exit, dirn = max(te, t0), 1
-        dn = _dot(seg, i, rt.NS, dx, dy, dz)
+        dn = seg[i, T_D + 4] if use_d else _dot(seg, i, rt.NS, dx, dy, dz)
         if dn < -1e-12:
-            ts = _dot(seg, i, rt.NS, seg[i, 0] - ox, seg[i, 1] - oy, seg[i, 2] - oz) / dn
+            num = seg[i, T_O + 4] if use_o else _dot(seg, i, rt.NS, seg[i, 0] - ox, seg[i, 1] - oy, seg[i, 2] - oz)
+            ts = num / dn
             if ts < t_exit:
                 t_exit, dirn = max(ts, t0), -1
         best = min(t_exit, tmax)

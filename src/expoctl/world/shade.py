@@ -76,6 +76,10 @@ def _lamp_illuminance(seg, j, lp, lamp_mult, lamp_count, x, u, v, w, nu, nv, nw)
             vr = lp[rc.LP_ROWS + r]
             ddv = vr - v
             ddw = heights[r] - w
+            # the signs of both cosines are known before the square root and the divisions: skip lamps behind the
+            # panel or the surface (every lamp for the ceiling, the far row for walls), which add nothing anyway
+            if not (ddw > 0.0 and nu * du + nv * ddv + nw * ddw > 0.0):
+                continue
             r2 = du * du + ddv * ddv + ddw * ddw
             rr = math.sqrt(r2)
             cos_l = ddw / rr
@@ -107,9 +111,11 @@ _box_cover = rc._box_cover
 @njit(cache=True, inline="always")
 def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, hdri,
                 ox, oy, oz, dx, dy, dz, pix_rad, start_seg, start_inside, out, tex, cull):
-    """Luminance of one ray into out[0:3]; returns (t, code, material)."""
+    """Luminance of one ray into out[0:3]; returns (t, code, material).
+    seg: a raycast.with_frame_terms table for the camera position (ox, oy, oz) and the sun direction (lp[0:3])."""
     t, code, j, air, air_in, u, v, w, nu, nv, nw, mat = rc.trace(
-        seg, start_seg, start_inside, ox, oy, oz, dx, dy, dz, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull)
+        seg, start_seg, start_inside, ox, oy, oz, dx, dy, dz, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
+        True, False)
     if code == rc.SKY:
         _sky(lp, hdri, dx, dy, dz, out)
         return rc.INF, code, MAT_SKY
@@ -168,7 +174,8 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
     cos_sun = nx * sun_x + ny * sun_y + nz * sun_z
     if e_sun > 0.0 and cos_sun > 0.0 and sun_z > 0.0:
         px, py, pz = ox + t * dx + 0.02 * nx, oy + t * dy + 0.02 * ny, oz + t * dz + 0.02 * nz
-        ts = rc.trace(seg, air, air_in, px, py, pz, sun_x, sun_y, sun_z, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull)[1]
+        ts = rc.trace(seg, air, air_in, px, py, pz, sun_x, sun_y, sun_z, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
+                      False, True)[1]
         if ts == rc.SKY:
             e_day += e_sun * cos_sun
     if not interior:
@@ -218,6 +225,8 @@ def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_
     h, w = out_depth.shape
     pix_rad = 1.0 / fx
     stride = rc.spread_stride(h)
+    # per-segment terms shared by every primary ray (camera origin) and every shadow ray (sun direction)
+    segf = rc.with_frame_terms(seg, cam[0], cam[1], cam[2], lp[0], lp[1], lp[2])
     for k in prange(h):
         yy = (k * stride) % h  # spread each thread's share of rows over the image (see spread_stride)
         px = np.empty(3)
@@ -230,7 +239,7 @@ def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_
             dy = (rot[1, 0] * cxr + rot[1, 1] * cyr + rot[1, 2]) * nrm
             dz = (rot[2, 0] * cxr + rot[2, 1] * cyr + rot[2, 2]) * nrm
             # a pixel's angular size shrinks off-axis (cos² radially, cos tangentially): use cos^1.5 ≈ nrm·sqrt(nrm)
-            t, code, mat = shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, hdri,
+            t, code, mat = shade_pixel(segf, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, hdri,
                                        cam[0], cam[1], cam[2], dx, dy, dz, pix_rad * nrm * math.sqrt(nrm), start_seg,
                                        start_inside, px, tex, cull)
             out_l[yy, xx, 0] = px[0]
