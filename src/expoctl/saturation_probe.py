@@ -152,13 +152,12 @@ class SaturationProbe:
         """Per-frame EV of the applied settings, and the clipped share of the last frame."""
         from expoctl.rig.closed_loop import run_closed_loop
 
-        evs, clipped = [], 0.0
+        evs, last = [], None
         for f in run_closed_loop(self.scene, [self.sensor], controller, initial,
                                  range(start, start + self.cfg.frames), self.cfg.seed):
-            cam = f.camera(1)
-            evs.append(_ev(cam.settings))
-            clipped = float((cam.image.mean(axis=2) >= SATURATED_DN).mean())
-        return np.array(evs), clipped
+            last = f.camera(1)
+            evs.append(_ev(last.settings))
+        return np.array(evs), float((last.image.mean(axis=2) >= SATURATED_DN).mean())  # the last frame only
 
     def run(self, controller: Controller) -> dict:
         """{start name: [per offset: k_ev, start/final offset (EV), mean first step (EV/frame), final clipped

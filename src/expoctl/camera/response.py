@@ -72,7 +72,6 @@ class Response:
             raise ValueError(f"pedestal must lie in (-1, 1), got {pedestal}")
         if not np.all(self.white_balance_rgb > 0):
             raise ValueError(f"white_balance must be positive, got {white_balance}")
-        self.gamma = float(self.gamma_rgb[0])
         # the curve ignores gamma unless it is 'gamma': only parameters that change the curve make it per channel
         used = [self.pedestal_rgb, self.white_balance_rgb] + ([self.gamma_rgb] if curve == "gamma" else [])
         self.per_channel = any(np.ptp(p) > 0 for p in used)
