@@ -68,6 +68,9 @@ def child_metrics(result, split: str, controller: str) -> dict[str, float]:
     n_ok, n = e["tracking_success"]
     m.update({"tracking_success_n_ok": n_ok, "tracking_success_n_runs": n, "tracking_success_rate": n_ok / n})
     r = result.runs[(result.runs.route_split == split) & (result.runs.controller == controller)]
+    if "vo_map_success" in r.columns and len(r):
+        n_map = int(r.vo_map_success.astype(bool).sum())
+        m.update({"tracking_map_success_n_ok": n_map, "tracking_map_success_rate": n_map / len(r)})
     for col in ("vo_ate_m", "vo_rpe_trans_m", "vo_rpe_rot_deg", "controller_ms_median", "seconds_per_frame"):
         vals = r[col].to_numpy(dtype=float)
         vals = vals[np.isfinite(vals)]

@@ -29,6 +29,10 @@ def test_default_yaml_loads():
     ({"frontends": ["orb"]}, "evaluate.frontends"),
     ({"render_size": [10, 10]}, "evaluate.render_size"),
     ({"vo": {"min_inliers": 3}}, "evaluate.vo.min_inliers"),
+    ({"vo": {"map": {"min_inliers": 2}}}, "evaluate.vo.map.min_inliers"),
+    ({"vo": {"map": {"search_radius_px": 0}}}, "evaluate.vo.map.search_radius_px"),
+    ({"vo": {"map": {"radius": 15}}}, "evaluate.vo.map.radius"),
+    ({"vo": {"map": [30]}}, "evaluate.vo.map"),
     ({"initial_exposure_us": 50.0}, "evaluate.initial_exposure_us"),
     ({"speed": 1}, "evaluate.speed"),
 ])
@@ -48,3 +52,10 @@ def test_windows_passage_and_portal_frames():
     assert portal[1][1:] == (150, 171)
     with pytest.raises(ConfigError, match="no room"):  # warm-up does not fit before the first entry
         _windows_of(portals, SplitPlan("test", before_s=2.0), 10.0, 600, warmup=90)
+
+
+def test_vo_map_block_is_read():
+    cfg = EvaluateConfig.from_dict({"splits": {"validation": {}}, "vo": {"map": {"min_inliers": 40,
+                                                                                "search_radius_px": 10}}})
+    assert cfg.vo.map.min_inliers == 40 and cfg.vo.map.search_radius_px == 10.0
+    assert cfg.vo.map.keyframe_every == 5  # unset keys keep the module's defaults

@@ -271,7 +271,7 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
         scene, sensors[0], controller, window, seed=w.seed, frontends=frontends, sumlog=job.sumlog,
         initial=Settings(ecfg.initial_gain_db, ecfg.initial_exposure_us), warmup_frames=warmup, K=K,
         vo_min_inliers=ecfg.vo.min_inliers, vo_n_features=ecfg.vo.n_features,
-        vo_ransac_threshold_px=ecfg.vo.ransac_threshold_px, thumb_width=ecfg.thumb_width,
+        vo_ransac_threshold_px=ecfg.vo.ransac_threshold_px, vo_map=ecfg.vo.map, thumb_width=ecfg.thumb_width,
         thumb_every=ecfg.thumb_every, thumb_span_s=ecfg.thumb_span_s)
     ident = {"run_id": job.run_id, "route_split": w.route_split, "city": w.city_name, "traversal": w.traversal,
              "window": w.index, "window_label": w.label, "controller": job.controller}

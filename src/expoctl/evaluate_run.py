@@ -2,13 +2,14 @@
 
 Per frame t (camera 1 only): the settings the frame was captured with, image statistics, and for each front end
 (ORB, libviso2-style), on the raw grey image and on its SumLog transform, the feature count and the matches /
-inlier matches (NFM) with frame t−1. The whole frame sequence also goes through monocular VO (`expoctl.vo`) for
-the tracking-success test. Every controller of a window sees the same scene, sensor (same randomised parameters
+inlier matches (NFM) with frame t−1. The whole frame sequence also goes through monocular VO for the tracking-success
+test, twice: frame to frame (`expoctl.vo`) and against a local map with ORB-SLAM2's thresholds (`expoctl.vo_map`). Every controller of a window sees the same scene, sensor (same randomised parameters
 and fixed-pattern noise) and per-frame noise seeds, so their differences come from the settings alone.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import time
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ import cv2
 import numpy as np
 
 from expoctl.controllers.base import Controller, Settings
+from expoctl.evaluate_config import VoMapConfig
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
 from expoctl.rig.closed_loop import run_closed_loop
 
@@ -87,6 +89,7 @@ def drive_window(
     vo_min_inliers: int = 20,
     vo_n_features: int = 2000,
     vo_ransac_threshold_px: float = 1.0,
+    vo_map: VoMapConfig | None = None,
     thumb_width: int = 0,
     thumb_every: int = 1,
     thumb_span_s: float = 0.0,
@@ -98,6 +101,7 @@ def drive_window(
     ({"frame": (k,), "image": (k, h, w, 3)}; empty when thumb_width is 0)."""
     from expoctl.features.pipeline import rgb_to_grey
     from expoctl.vo import track_sequence
+    from expoctl.vo_map import MapTracker, MapTrackerConfig
 
     timed = TimedController(controller)
     rows: list[dict] = []
@@ -105,6 +109,13 @@ def drive_window(
     thumbs: list[np.ndarray] = []
     thumb_frames: list[int] = []
     t_start = time.perf_counter()
+
+    n = len(window.frames)
+    gt = None if window.gt_poses is None else np.asarray(window.gt_poses)[:n]
+    # the stricter, ORB-SLAM2-like test tracks the same frames against a local map (expoctl.vo_map)
+    map_cfg = vo_map or VoMapConfig()
+    map_tracker = MapTracker(K, MapTrackerConfig(n_features=vo_n_features, **dataclasses.asdict(map_cfg)), gt,
+                             seed=pair_seed(window.sequence, 0, "vo_map"))
 
     def frames_and_stats():
         loop = run_closed_loop(scene, [sensor], timed, initial, window.frames, seed, warmup_frames=warmup_frames)
@@ -134,17 +145,18 @@ def drive_window(
                 thumbs.append(cv2.resize(img, (thumb_width, h), interpolation=cv2.INTER_AREA))
                 thumb_frames.append(k)
             rows.append(row)
+            map_tracker.step(img)
             yield img
 
-    n = len(window.frames)
-    gt = None if window.gt_poses is None else np.asarray(window.gt_poses)[:n]
     result = track_sequence(frames_and_stats(), K, min_inliers=vo_min_inliers, gt_poses=gt, n_features=vo_n_features,
                             ransac_threshold_px=vo_ransac_threshold_px, seed=pair_seed(window.sequence, 0, "vo"))
     seconds = time.perf_counter() - t_start
     # update_ms covers warm-up frames too; the recorded frames are the last n
     ms = timed.update_ms[-n:] if timed.update_ms else []
+    map_result = map_tracker.result()
     for k, row in enumerate(rows):
         row["vo_n_inliers"] = float(result.n_inliers[k - 1]) if k >= 1 else np.nan
+        row["vo_map_n_inliers"] = float(map_result.n_inliers[k - 1]) if k >= 1 else np.nan
         row["controller_ms"] = float(ms[k]) if k < len(ms) else np.nan
     summary = {
         "sequence": window.sequence,
@@ -155,6 +167,11 @@ def drive_window(
         "vo_rpe_trans_m": float(result.rpe["trans_m"]) if result.rpe else np.nan,
         "vo_rpe_rot_deg": float(result.rpe["rot_deg"]) if result.rpe else np.nan,
         "vo_min_inliers": int(result.n_inliers.min()) if len(result.n_inliers) else 0,
+        "vo_map_success": bool(map_result.success),
+        "vo_map_failed_at": -1 if map_result.failed_at_frame is None else int(map_result.failed_at_frame),
+        # bootstrap frames (the first map_cfg.bootstrap_frames) are not tracked, so not in the minimum
+        "vo_map_min_inliers": (int(map_result.n_inliers[map_cfg.bootstrap_frames - 1:].min())
+                               if len(map_result.n_inliers) >= map_cfg.bootstrap_frames else 0),
         "controller_ms_median": float(np.median(timed.update_ms)) if timed.update_ms else np.nan,
         "seconds": seconds,
         "seconds_per_frame": seconds / max(n, 1),

@@ -1,0 +1,97 @@
+"""Local-map tracking (ORB-SLAM2's thresholds) on the synthetic 3-D scenes of test_vo: success, failure, bad input."""
+
+import numpy as np
+import pytest
+
+from expoctl.errors import InputError
+from expoctl.vo import track_sequence
+from expoctl.vo_map import CHI2_2DOF_95, MapTracker, MapTrackerConfig, hamming, track_map_sequence
+from test_vo import K, _sequence
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    return _sequence(n=14)
+
+
+def test_hamming_counts_differing_bits():
+    a = np.zeros((3, 32), np.uint8)
+    b = a.copy()
+    b[1, 0] = 0b1011  # 3 bits
+    b[2] = 255        # all 256 bits
+    assert hamming(a, b).tolist() == [0, 3, 256]
+
+
+def test_tracks_a_synthetic_sequence_against_its_map(sequence):
+    frames, gt = sequence
+    res = track_map_sequence(frames, K, gt_poses=gt)
+    assert res.success and res.failed_at_frame is None
+    assert res.n_inliers.shape == (len(frames) - 1,)
+    tracked = res.n_inliers[2:]  # frames 0-2 bootstrap the map from ground truth
+    assert tracked.min() >= 30
+    # a map inlier is a feature matched to a point triangulated in an earlier keyframe: never more than the
+    # frame-to-frame inliers of the same pair on this scene (every map point is also a consecutive-pair feature)
+    ff = track_sequence(frames, K, gt_poses=gt).n_inliers
+    assert np.all(tracked <= ff[2:])
+    # the tracked poses are good to centimetres (ground-truth step length, tracked direction and rotation)
+    assert res.ate_m < 0.10
+    assert res.rpe["rot_deg"] < 1.0
+
+
+def test_a_blank_frame_loses_track_there_and_tracking_resumes(sequence):
+    frames, gt = sequence
+    frames = list(frames)
+    frames[9] = np.full_like(frames[9], 255)  # a saturated frame: no features
+    res = track_map_sequence(frames, K, gt_poses=gt)
+    assert not res.success and res.failed_at_frame == 9
+    assert res.n_inliers[8] == 0
+    # the map is rebuilt from frame 9 on (bootstrap frames 9-11), so the failure does not hide later counts
+    assert res.n_inliers[-1] >= 30
+
+
+def test_fails_when_threshold_exceeds_what_the_map_offers(sequence):
+    frames, gt = sequence
+    counts = track_map_sequence(frames, K, gt_poses=gt).n_inliers[2:]
+    strict = MapTrackerConfig(min_inliers=int(counts.min()) + 1)
+    res = track_map_sequence(frames, K, gt_poses=gt, config=strict)
+    assert not res.success
+    assert res.failed_at_frame == 3 + int(np.argmax(counts < strict.min_inliers))
+
+
+def test_tracks_without_ground_truth(sequence):
+    """Bootstrap steps come from the essential matrix (unit length): the map and the track are up to scale."""
+    frames, _ = sequence
+    res = track_map_sequence(frames[:10], K)
+    assert res.success
+    assert res.n_inliers[2:].min() >= 30
+    assert res.ate_m is None and res.trajectory.shape == (10, 4, 4)
+
+
+def test_inlier_bound_is_the_chi2_95_percent_quantile():
+    assert CHI2_2DOF_95 == pytest.approx(-2 * np.log(0.05), abs=1e-3)  # χ²(2) quantile: −2 ln(1 − p)
+
+
+@pytest.mark.parametrize("kw, word", [
+    ({"min_inliers": 5}, "min_inliers"), ({"min_inliers": 30.5}, "min_inliers"),
+    ({"search_radius_px": 0.0}, "search_radius_px"), ({"search_radius_px": float("nan")}, "search_radius_px"),
+    ({"bootstrap_frames": 1}, "bootstrap_frames"), ({"keyframe_every": 0}, "keyframe_every"),
+])
+def test_bad_config_names_the_key(kw, word):
+    with pytest.raises(InputError, match=word):
+        MapTracker(K, MapTrackerConfig(**kw))
+
+
+def test_bad_inputs_are_named(sequence):
+    frames, gt = sequence
+    with pytest.raises(InputError, match="K must be"):
+        MapTracker(np.eye(2))
+    with pytest.raises(InputError, match="gt_poses"):
+        MapTracker(K, gt_poses=np.zeros((3, 3)))
+    tracker = MapTracker(K)
+    tracker.step(frames[0])
+    with pytest.raises(InputError, match="frame 1 has size"):
+        tracker.step(frames[1][:100])
+    with pytest.raises(InputError, match="frame 0 must be"):
+        MapTracker(K).step(frames[0].astype(np.float32))
+    with pytest.raises(InputError, match="gt_poses has 5 poses"):
+        track_map_sequence(frames[:8], K, gt_poses=gt[:5])
