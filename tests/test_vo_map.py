@@ -33,9 +33,8 @@ def test_tracks_a_synthetic_sequence_against_its_map(sequence):
     # frame-to-frame inliers of the same pair on this scene (every map point is also a consecutive-pair feature)
     ff = track_sequence(frames, K, gt_poses=gt).n_inliers
     assert np.all(tracked <= ff[2:])
-    # the tracked poses are good to centimetres (ground-truth step length, tracked direction and rotation)
-    assert res.ate_m < 0.10
-    assert res.rpe["rot_deg"] < 1.0
+    # with ground truth every frame takes its true pose: the count is about the images alone
+    assert res.trajectory == pytest.approx(gt) and res.ate_m == pytest.approx(0.0, abs=1e-9)
 
 
 def test_a_blank_frame_loses_track_there_and_tracking_resumes(sequence):
@@ -58,13 +57,24 @@ def test_fails_when_threshold_exceeds_what_the_map_offers(sequence):
     assert res.failed_at_frame == 3 + int(np.argmax(counts < strict.min_inliers))
 
 
-def test_tracks_without_ground_truth(sequence):
-    """Bootstrap steps come from the essential matrix (unit length): the map and the track are up to scale."""
-    frames, _ = sequence
+def test_tracks_without_ground_truth_by_pnp(sequence):
+    """Bootstrap steps come from the essential matrix (unit length), later poses from PnP against the map: the
+    track is up to scale, so its direction of travel and rotation are checked against ground truth."""
+    frames, gt = sequence
     res = track_map_sequence(frames[:10], K)
     assert res.success
     assert res.n_inliers[2:].min() >= 30
     assert res.ate_m is None and res.trajectory.shape == (10, 4, 4)
+    d_est = res.trajectory[-1, :3, 3] - res.trajectory[0, :3, 3]
+    d_gt = gt[9, :3, 3] - gt[0, :3, 3]
+    cos = d_est @ d_gt / np.linalg.norm(d_est) / np.linalg.norm(d_gt)
+    assert np.degrees(np.arccos(min(cos, 1.0))) < 5.0
+    # the relative rotation over the run (9° of yaw) is recovered to a few degrees (measured 2.4°; no bundle
+    # adjustment): an inverted or transposed rotation would be off by 18°
+    R_est = res.trajectory[0, :3, :3].T @ res.trajectory[-1, :3, :3]
+    R_gt = gt[0, :3, :3].T @ gt[9, :3, :3]
+    ang = np.degrees(np.arccos(np.clip((np.trace(R_est.T @ R_gt) - 1) / 2, -1, 1)))
+    assert ang < 4.0
 
 
 def test_inlier_bound_is_the_chi2_95_percent_quantile():

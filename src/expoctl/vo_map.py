@@ -10,20 +10,27 @@ frame-to-frame ORB NFM was 54–63 (Table II–III), far above the 15–20 of a 
 
 What is kept of ORB-SLAM2's tracking thread (facts from its paper and documented parameters, no code):
 - 2,000 ORB features per frame, 8 levels, scale 1.2 (its KITTI setting); per-level σ = 1.2^level px.
-- Motion model: the predicted pose is the previous pose times the last inter-frame motion. Map points in front of
-  the camera are projected and matched to keypoints within `search_radius_px` (15 px, doubled once if fewer than 20
-  matches), Hamming distance ≤ 100 and best < 0.9 × second best; a keypoint goes to its closest map point.
-- Pose: PnP RANSAC from the prediction, refined by Levenberg–Marquardt on the inliers; a match is a map inlier when
-  its reprojection error² < 5.991·σ² (χ², 2 DoF, 95 %). Fewer than `min_inliers` (30) map inliers: lost.
-- Keyframes when the map inliers fall below 90 % of the reference keyframe's or every `keyframe_every` frames; new
-  points are triangulated between the new keyframe and the previous one from unassociated keypoints that match
-  (Hamming ≤ 50, mutual best), lie in front of both cameras, have > 1.15° parallax (cos < 0.9998) and reproject
-  within the χ² bound in both. A point's descriptor is its latest keyframe observation's; points not observed in the
-  last `local_keyframes` keyframes leave the local map.
-What is simpler, and why it does not change what is measured: initialisation and re-initialisation use ground-truth
-poses for `bootstrap_frames` frames (monocular initialisation and scale are not what the exposure test is about; a
-failure is still recorded at the frame that lost track); no local bundle adjustment, no loop closing, no
-relocalisation. Without ground truth the bootstrap takes unit-length steps from the essential matrix.
+- Matching by projection: map points in front of the camera are projected with the frame's pose and matched to
+  keypoints within `search_radius_px` (15 px), Hamming distance ≤ 100 and best < 0.9 × second best; a keypoint goes
+  to its closest map point. A match is a map inlier when its reprojection error² < 5.991·σ² (χ², 2 DoF, 95 %).
+  Fewer than `min_inliers` (30, TrackLocalMap) map inliers: lost.
+- Keyframes when the map inliers fall below 90 % of the map points the reference keyframe observes, or every
+  `keyframe_every` frames; new points are triangulated between the new keyframe and each of the previous
+  `triangulate_keyframes` ones from unassociated keypoints that match (Hamming ≤ 50, mutual best), lie in front of
+  both cameras, have > 1.15° parallax (cos < 0.9998) and reproject within the χ² bound in both. A point's
+  descriptor is its latest keyframe observation's; points not observed in the last `local_keyframes` keyframes
+  leave the local map.
+Geometry. With ground-truth poses (the simulator's evaluation) every frame takes its true pose: the count then
+measures only whether this image's features re-find the map built from the earlier images, which is what exposure
+control changes. Without bundle adjustment our monocular pose estimates jittered by metres within a few hundred
+frames on the simulated routes and lost track on open road for reasons no controller could affect, so estimated
+poses would blur the comparison. Without ground truth (real recordings) the pose is estimated as ORB-SLAM2's
+motion model does: prediction from the last inter-frame motion, PnP RANSAC, Levenberg–Marquardt refinement on the
+inliers, the same χ² inlier test; the map is then up to scale.
+(Re)initialisation: the first `bootstrap_frames` frames, and the same number after a loss, take ground-truth poses
+(without ground truth, unit-length steps from the essential matrix) and are not scored: monocular initialisation is
+not what the exposure test is about. A failure is recorded at the first scored frame that lost track. Not modelled:
+local bundle adjustment, loop closing, relocalisation.
 """
 
 from __future__ import annotations
@@ -150,7 +157,13 @@ class MapTracker:
             self._accept(frame, count, keyframe=True)
             return count
 
-        count, T_cw = self._track(frame, self.velocity @ self.prev.T_cw)
+        if self.gt is not None:
+            # ground-truth geometry: the pose is known, so the count is purely whether this image's features re-find
+            # the map (what exposure control can change); no pose error or drift can lose or keep track
+            T_cw = _inv(self._gt(self.i))
+            count = self._count_inliers(frame, T_cw)
+        else:
+            count, T_cw = self._track(frame, self.velocity @ self.prev.T_cw)
         if count < self.cfg.min_inliers:
             if self.failed_at is None:
                 self.failed_at = self.i
@@ -161,7 +174,7 @@ class MapTracker:
             self.bootstrap_left = self.cfg.bootstrap_frames - 1
             self._accept(frame, count, keyframe=True)
             return count
-        frame.T_cw = self._gt_scaled(T_cw)
+        frame.T_cw = T_cw
         new_kf = (count < 0.9 * self.kf_tracked) or self.frames_since_kf + 1 >= self.cfg.keyframe_every
         self._accept(frame, count, keyframe=new_kf)
         return count
@@ -181,21 +194,6 @@ class MapTracker:
         if i >= len(self.gt):
             raise InputError(f"vo map tracker: gt_poses has {len(self.gt)} poses but the sequence has more frames")
         return self.gt[i]
-
-    def _gt_scaled(self, T_cw: np.ndarray) -> np.ndarray:
-        """With ground truth, the step from the previous camera position takes the ground-truth length (direction
-        and rotation as tracked): monocular scale is unobservable and, without ORB-SLAM2's local bundle adjustment,
-        drifts by tens of per cent within a few hundred metres, which would shrink the map it tracks against."""
-        if self.gt is None:
-            return T_cw
-        c_prev = _inv(self.prev.T_cw)[:3, 3]
-        T_wc = _inv(T_cw)
-        step = T_wc[:3, 3] - c_prev
-        length = float(np.linalg.norm(step))
-        gt_len = float(np.linalg.norm(self._gt(self.i)[:3, 3] - self._gt(self.i - 1)[:3, 3]))
-        if length > 1e-9:
-            T_wc[:3, 3] = c_prev + step * (gt_len / length)
-        return _inv(T_wc)
 
     def _bootstrap_pose(self, frame: _Frame) -> np.ndarray:
         if self.gt is not None:

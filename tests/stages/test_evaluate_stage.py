@@ -47,9 +47,14 @@ def test_eval_tables(evaluated):
     frames = pd.read_parquet(root / "reports/eval/frames.parquet")
     runs = pd.read_parquet(root / "reports/eval/runs.parquet")
     assert len(runs) == 14 and set(runs.controller) == set(CONTROLLER_NAMES)
-    assert {"vo_success", "vo_failed_at", "vo_ate_m"} <= set(runs.columns)
+    assert {"vo_success", "vo_failed_at", "vo_ate_m", "vo_map_success", "vo_map_failed_at",
+            "vo_map_min_inliers"} <= set(runs.columns)
+    # a run that kept its map kept every tracked frame at or above the map threshold (30), and a lost one names a frame
+    ok = runs.vo_map_success.astype(bool)
+    assert (runs.loc[ok, "vo_map_min_inliers"] >= 30).all() and (runs.loc[ok, "vo_map_failed_at"] == -1).all()
+    assert (runs.loc[~ok, "vo_map_failed_at"] >= 3).all()  # never during the 3 bootstrap frames
     for col in ("gain_db", "exposure_us", "mean_grey", "saturated_frac", "nfm_orb", "nfm_viso", "nfm_orb_sumlog",
-                "nfm_viso_sumlog", "vo_n_inliers", "section", "portal_dt_s"):
+                "nfm_viso_sumlog", "vo_n_inliers", "vo_map_n_inliers", "section", "portal_dt_s"):
         assert col in frames.columns, col
     # every controller drove the same frames of the same windows
     per = frames.groupby(["sequence", "controller"])["traj_frame"].apply(tuple).unstack()
