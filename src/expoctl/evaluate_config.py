@@ -40,8 +40,8 @@ class VoMapConfig:
     min_inliers: int = 30
     search_radius_px: float = 15.0
     keyframe_every: int = 5
-    local_keyframes: int = 10
-    triangulate_keyframes: int = 3
+    local_keyframes: int = 20
+    triangulate_keyframes: int = 20
     bootstrap_frames: int = 3
 
 

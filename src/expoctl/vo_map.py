@@ -16,10 +16,13 @@ What is kept of ORB-SLAM2's tracking thread (facts from its paper and documented
   Fewer than `min_inliers` (30, TrackLocalMap) map inliers: lost.
 - Keyframes when the map inliers fall below 90 % of the map points the reference keyframe observes, or every
   `keyframe_every` frames; new points are triangulated between the new keyframe and each of the previous
-  `triangulate_keyframes` ones from unassociated keypoints that match (Hamming ≤ 50, mutual best), lie in front of
-  both cameras, have > 1.15° parallax (cos < 0.9998) and reproject within the χ² bound in both. A point's
-  descriptor is its latest keyframe observation's; points not observed in the last `local_keyframes` keyframes
-  leave the local map.
+  `triangulate_keyframes` ones (20: ORB-SLAM2's neighbour count for a monocular map) from unassociated keypoints
+  that match (Hamming ≤ 50, mutual best), lie in front of both cameras, have > 1.15° parallax (cos < 0.9998) and
+  reproject within the χ² bound in both. A point's
+  descriptor is its latest keyframe observation's; points not observed in the last `local_keyframes` (20)
+  keyframes leave the local map. The map's density decides how deep a transition it survives: with 3 keyframes
+  for triangulation and a 10-keyframe local map, AG+AE lost track at tunnel entries and on feature-poor open road
+  where the 20-keyframe map kept it (README, Results).
 Geometry. With ground-truth poses (the simulator's evaluation) every frame takes its true pose: the count then
 measures only whether this image's features re-find the map built from the earlier images, which is what exposure
 control changes. Without bundle adjustment our monocular pose estimates jittered by metres within a few hundred
@@ -65,9 +68,9 @@ class MapTrackerConfig:
     n_features: int = 2000
     search_radius_px: float = 15.0
     keyframe_every: int = 5
-    local_keyframes: int = 10
+    local_keyframes: int = 20
     bootstrap_frames: int = 3
-    triangulate_keyframes: int = 3
+    triangulate_keyframes: int = 20
 
     def validate(self) -> None:
         for name, lo in (("min_inliers", 6), ("n_features", 10), ("keyframe_every", 1), ("local_keyframes", 2),
