@@ -10,7 +10,8 @@ import pytest
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.evaluate_run import VARIANTS
-from expoctl.report import ReportConfig, headline, load_eval, nfm_table, tracking_table, vo_margin_table
+from expoctl.report import (ReportConfig, headline, load_eval, nfm_table, runs_table, tracking_table,
+                            vo_margin_table)
 
 
 def _metrics():
@@ -53,6 +54,24 @@ def test_tracking_table_counts_and_ate_over_successes():
                          "vo_success": [False, False, True, True], "vo_ate_m": [9.0, 9.0, 0.5, 1.5]})
     md = tracking_table(_metrics(), runs)
     assert "| AG+AE | 0/2 | — |" in md and "| Ours | 2/2 | 1.00 |" in md
+
+
+def test_map_tracking_columns_enter_the_tables_and_the_headline():
+    runs = pd.DataFrame({"route_split": ["validation"] * 4, "controller": ["agae", "agae", "learned", "learned"],
+                         "sequence": ["w0", "w1", "w0", "w1"], "window_label": ["a", "b", "a", "b"],
+                         "vo_success": [True] * 4, "vo_failed_at": [-1] * 4, "vo_ate_m": [0.5] * 4,
+                         "vo_min_inliers": [80, 90, 200, 210],
+                         "vo_map_success": [False, True, True, True], "vo_map_failed_at": [57, -1, -1, -1],
+                         "vo_map_min_inliers": [12, 49, 120, 140]})
+    md = tracking_table(_metrics(), runs)
+    assert "map-tracking VO successes, validation" in md
+    assert "| AG+AE | 0/2 | 1/2 | 0.50 |" in md and "| Ours | 2/2 | 2/2 | 0.50 |" in md
+    per = runs_table(runs)
+    assert "| w0 (a) | tracked / lost at 57 | tracked / tracked |" in per
+    margin = vo_margin_table(runs, (30, 50), "vo_map_min_inliers").splitlines()
+    cells = {r.split("|")[1].strip(): [x.strip() for x in r.split("|")[2:-1]] for r in margin[2:]}
+    assert cells["AG+AE"] == ["12 / 30", "1/2", "0/2"] and cells["Ours"] == ["120 / 130", "2/2", "2/2"]
+    assert headline(_metrics(), runs)[0].endswith("; map-tracking VO 2/2 vs 1/2.")
 
 
 def test_load_eval_names_missing_and_malformed_files(tmp_path):

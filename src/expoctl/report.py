@@ -148,21 +148,22 @@ def tracking_table(metrics: dict, runs: pd.DataFrame) -> str:
 VO_MARGIN_THRESHOLDS = (20, 50, 100, 150, 200)
 
 
-def vo_margin_table(runs: pd.DataFrame, thresholds=VO_MARGIN_THRESHOLDS) -> str:
-    """Per controller and split: the worst frame pair's tracked-inlier count of each run (`vo_min_inliers`, the
-    strictest threshold at which that run would still have tracked), as min / median over runs, and the runs of
-    both splits tracked at stricter thresholds (a run fails below the threshold)."""
+def vo_margin_table(runs: pd.DataFrame, thresholds=VO_MARGIN_THRESHOLDS, column: str = "vo_min_inliers") -> str:
+    """Per controller and split: each run's worst tracked count (`column`: the frame-to-frame VO's worst pair,
+    `vo_min_inliers`, or the map tracker's worst scored frame, `vo_map_min_inliers`; the strictest threshold at
+    which that run would still have tracked), as min / median over runs, and the runs of both splits tracked at
+    stricter thresholds (a run fails below the threshold)."""
     splits = [s for s in ("validation", "test") if s in set(runs.route_split)]
     ctrls = [c for c in CONTROLLER_NAMES if c in set(runs.controller)]
-    head = "| Method | " + " | ".join(f"worst pair, {s}: min / median over runs" for s in splits) + " | " + \
+    head = "| Method | " + " | ".join(f"worst, {s}: min / median over runs" for s in splits) + " | " + \
         " | ".join(f"tracked at ≥ {t}" for t in thresholds) + " |"
     lines = [head, "|---|" + "---:|" * (len(splits) + len(thresholds))]
     for c in ctrls:
         cells = []
         for s in splits:
-            w = runs.loc[(runs.route_split == s) & (runs.controller == c), "vo_min_inliers"].to_numpy(float)
+            w = runs.loc[(runs.route_split == s) & (runs.controller == c), column].to_numpy(float)
             cells.append(f"{w.min():.0f} / {np.median(w):.0f}" if len(w) else "—")
-        w_all = runs.loc[runs.controller == c, "vo_min_inliers"].to_numpy(float)
+        w_all = runs.loc[runs.controller == c, column].to_numpy(float)
         cells += [f"{int((w_all >= t).sum())}/{len(w_all)}" for t in thresholds]
         lines.append(f"| {label(c)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -312,6 +313,9 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
            "the run would still have tracked (this VO matches frame to frame; ORB-SLAM2 tracks map points from older "
            "keyframes and loses track earlier). Runs tracked at stricter thresholds pool both cities.", "",
            vo_margin_table(runs), "",
+           *(["Map-tracking VO margin: each run's fewest map inliers on a scored frame (a lost run: the count where "
+              "it was lost).", "", vo_margin_table(runs, (30, 50, 75, 100, 150), "vo_map_min_inliers"), ""]
+             if "vo_map_min_inliers" in runs.columns else []),
            "## Timing", "", timing_table(runs), "", "## Figures", ""]
     captions = {
         "fig7_tunnel_timeline": "Fig. 7 analogue: NFM (ORB, libviso2-style) and gain / exposure per frame through a "
