@@ -6,7 +6,8 @@ the paired difference to AG+AE (mean ± standard error over sections) and how ma
 controller the median exposure product (EV), grey level, clipped share and gain over all recorded frames; then how
 deep each controller's worst transition goes (mean dynamic-section minimum ORB NFM over mean static-section median,
 next to the paper's Table I, where ORB-SLAM2 lost track with AG+AE at 0.09 and kept it with theirs at 0.16); then
-the VO margin table of the report (each run's worst frame pair) over the pooled runs.
+the VO margin table of the report (each run's worst frame pair) over the pooled runs, and, for evaluations that
+ran it, the map-tracking VO's successes and margins (each run's fewest map inliers).
 
     .venv/bin/python benchmarks/eval_compare.py [REPORTS_DIR ...]     (default: reports; each holds eval/)
 
@@ -96,8 +97,16 @@ def main() -> int:
     # VO margin over the pooled runs: each run's worst frame pair (tracked inliers), runs tracked at stricter thresholds
     from expoctl.report import vo_margin_table
 
+    runs = load(specs, "runs")
     print()
-    print(vo_margin_table(load(specs, "runs")))
+    print(vo_margin_table(runs))
+    if "vo_map_min_inliers" in runs.columns:
+        # the local-map tracker (expoctl.vo_map): successes per city, then each run's fewest map inliers
+        print()
+        print(runs.groupby(["route_split", "controller"]).vo_map_success.agg(
+            lambda v: f"{int(v.astype(bool).sum())}/{len(v)}").rename("map-tracking VO successes").to_string())
+        print()
+        print(vo_margin_table(runs, (30, 50, 75, 100, 150), "vo_map_min_inliers"))
     return 0
 
 
