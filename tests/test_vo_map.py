@@ -8,6 +8,8 @@ from expoctl.vo import track_sequence
 from expoctl.vo_map import CHI2_2DOF_95, MapTracker, MapTrackerConfig, hamming, track_map_sequence
 from test_vo import K, _sequence
 
+BOOT3 = MapTrackerConfig(bootstrap_frames=3)  # the synthetic sequences are 14 frames: score from frame 3
+
 
 @pytest.fixture(scope="module")
 def sequence():
@@ -24,7 +26,7 @@ def test_hamming_counts_differing_bits():
 
 def test_tracks_a_synthetic_sequence_against_its_map(sequence):
     frames, gt = sequence
-    res = track_map_sequence(frames, K, gt_poses=gt)
+    res = track_map_sequence(frames, K, gt_poses=gt, config=BOOT3)
     assert res.success and res.failed_at_frame is None
     assert res.n_inliers.shape == (len(frames) - 1,)
     tracked = res.n_inliers[2:]  # frames 0-2 bootstrap the map from ground truth
@@ -41,7 +43,7 @@ def test_a_blank_frame_loses_track_there_and_tracking_resumes(sequence):
     frames, gt = sequence
     frames = list(frames)
     frames[9] = np.full_like(frames[9], 255)  # a saturated frame: no features
-    res = track_map_sequence(frames, K, gt_poses=gt)
+    res = track_map_sequence(frames, K, gt_poses=gt, config=BOOT3)
     assert not res.success and res.failed_at_frame == 9
     assert res.n_inliers[8] == 0
     # the map is rebuilt from frame 9 on (bootstrap frames 9-11), so the failure does not hide later counts
@@ -50,8 +52,8 @@ def test_a_blank_frame_loses_track_there_and_tracking_resumes(sequence):
 
 def test_fails_when_threshold_exceeds_what_the_map_offers(sequence):
     frames, gt = sequence
-    counts = track_map_sequence(frames, K, gt_poses=gt).n_inliers[2:]
-    strict = MapTrackerConfig(min_inliers=int(counts.min()) + 1)
+    counts = track_map_sequence(frames, K, gt_poses=gt, config=BOOT3).n_inliers[2:]
+    strict = MapTrackerConfig(min_inliers=int(counts.min()) + 1, bootstrap_frames=3)
     res = track_map_sequence(frames, K, gt_poses=gt, config=strict)
     assert not res.success
     assert res.failed_at_frame == 3 + int(np.argmax(counts < strict.min_inliers))
@@ -61,7 +63,7 @@ def test_tracks_without_ground_truth_by_pnp(sequence):
     """Bootstrap steps come from the essential matrix (unit length), later poses from PnP against the map: the
     track is up to scale, so its direction of travel and rotation are checked against ground truth."""
     frames, gt = sequence
-    res = track_map_sequence(frames[:10], K)
+    res = track_map_sequence(frames[:10], K, config=BOOT3)
     assert res.success
     assert res.n_inliers[2:].min() >= 30
     assert res.ate_m is None and res.trajectory.shape == (10, 4, 4)
@@ -104,4 +106,17 @@ def test_bad_inputs_are_named(sequence):
     with pytest.raises(InputError, match="frame 0 must be"):
         MapTracker(K).step(frames[0].astype(np.float32))
     with pytest.raises(InputError, match="gt_poses has 5 poses"):
-        track_map_sequence(frames[:8], K, gt_poses=gt[:5])
+        track_map_sequence(frames[:8], K, gt_poses=gt[:5], config=BOOT3)
+
+
+def test_bootstrap_frames_are_not_scored(sequence):
+    """Default: 8 bootstrap frames (the map needs ~8 frames to fill). A blank frame inside them is no failure; one
+    after them is."""
+    frames, gt = sequence
+    early, late = list(frames), list(frames)
+    early[5] = np.full_like(frames[5], 255)
+    late[10] = np.full_like(frames[10], 255)
+    assert MapTrackerConfig().bootstrap_frames == 8
+    assert track_map_sequence(early, K, gt_poses=gt).success
+    res = track_map_sequence(late, K, gt_poses=gt)
+    assert not res.success and res.failed_at_frame == 10

@@ -42,7 +42,7 @@ class VoMapConfig:
     keyframe_every: int = 5
     local_keyframes: int = 20
     triangulate_keyframes: int = 20
-    bootstrap_frames: int = 3
+    bootstrap_frames: int = 8
 
 
 @dataclass(frozen=True)
