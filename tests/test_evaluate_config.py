@@ -59,3 +59,5 @@ def test_vo_map_block_is_read():
                                                                                 "search_radius_px": 10}}})
     assert cfg.vo.map.min_inliers == 40 and cfg.vo.map.search_radius_px == 10.0
     assert cfg.vo.map.keyframe_every == 5  # unset keys keep the module's defaults
+    assert cfg.vo.map.n_features == cfg.vo.n_features == 2000  # one ORB budget for both trackers
+    assert hash(cfg.vo)  # frozen all the way down

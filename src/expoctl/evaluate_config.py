@@ -14,6 +14,7 @@ from typing import Any
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.errors import ConfigError
+from expoctl.vo_map import MapTrackerConfig
 
 ROUTE_SPLITS = ("validation", "test")
 CONTROLLER_NAMES = ("agae", "shin", "shim", "mean_intensity", "fixed", "learned", "oracle")
@@ -35,22 +36,11 @@ class SplitPlan:
 
 
 @dataclass(frozen=True)
-class VoMapConfig:
-    """`evaluate.vo.map`: the local-map tracker (expoctl.vo_map), ORB-SLAM2's tracking thresholds."""
-    min_inliers: int = 30
-    search_radius_px: float = 15.0
-    keyframe_every: int = 5
-    local_keyframes: int = 20
-    triangulate_keyframes: int = 20
-    bootstrap_frames: int = 8
-
-
-@dataclass(frozen=True)
 class VoConfig:
     min_inliers: int = 20
     n_features: int = 2000
     ransac_threshold_px: float = 1.0
-    map: VoMapConfig = VoMapConfig()
+    map: MapTrackerConfig = field(default_factory=MapTrackerConfig)  # its n_features is vo.n_features
 
 
 @dataclass(frozen=True)
@@ -121,25 +111,27 @@ class EvaluateConfig:
         if not isinstance(vo, dict):
             raise ConfigError(f"{key}.vo", f"must be a mapping, got {vo!r}")
         _no_unknown(vo, {"min_inliers", "n_features", "ransac_threshold_px", "map"}, f"{key}.vo")
+        n_features = _int(vo.get("n_features", 2000), f"{key}.vo.n_features", 10)
         kw["vo"] = VoConfig(
             min_inliers=_int(vo.get("min_inliers", 20), f"{key}.vo.min_inliers", 5),
-            n_features=_int(vo.get("n_features", 2000), f"{key}.vo.n_features", 10),
+            n_features=n_features,
             ransac_threshold_px=_num(vo.get("ransac_threshold_px", 1.0), f"{key}.vo.ransac_threshold_px", 1e-3, 100.0),
-            map=vo_map_config_from_dict(vo.get("map") or {}, f"{key}.vo.map"),
+            map=vo_map_config_from_dict(vo.get("map") or {}, f"{key}.vo.map", n_features),
         )
         return cls(**kw)
 
 
-def vo_map_config_from_dict(d: Any, key: str) -> VoMapConfig:
+def vo_map_config_from_dict(d: Any, key: str, n_features: int) -> MapTrackerConfig:
+    """`evaluate.vo.map`: the local-map tracker's settings (expoctl.vo_map); it detects vo.n_features features."""
     if not isinstance(d, dict):
         raise ConfigError(key, f"must be a mapping, got {d!r}")
-    _no_unknown(d, set(VoMapConfig.__dataclass_fields__), key)
+    _no_unknown(d, set(MapTrackerConfig.__dataclass_fields__) - {"n_features"}, key)
     lows = {"min_inliers": 6, "keyframe_every": 1, "local_keyframes": 2, "triangulate_keyframes": 1,
             "bootstrap_frames": 2}
     kw: dict = {name: _int(d[name], f"{key}.{name}", lo) for name, lo in lows.items() if name in d}
     if "search_radius_px" in d:
         kw["search_radius_px"] = _num(d["search_radius_px"], f"{key}.search_radius_px", 1.0, 200.0)
-    return VoMapConfig(**kw)
+    return MapTrackerConfig(n_features=n_features, **kw)
 
 
 def split_plan_from_dict(name: str, d: Any, key: str) -> SplitPlan:

@@ -9,7 +9,6 @@ and fixed-pattern noise) and per-frame noise seeds, so their differences come fr
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import time
 from dataclasses import dataclass
@@ -19,7 +18,7 @@ import cv2
 import numpy as np
 
 from expoctl.controllers.base import Controller, Settings
-from expoctl.evaluate_config import VoMapConfig
+from expoctl.vo_map import MapTracker, MapTrackerConfig
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
 from expoctl.rig.closed_loop import run_closed_loop
 
@@ -89,7 +88,7 @@ def drive_window(
     vo_min_inliers: int = 20,
     vo_n_features: int = 2000,
     vo_ransac_threshold_px: float = 1.0,
-    vo_map: VoMapConfig | None = None,
+    vo_map: MapTrackerConfig | None = None,
     thumb_width: int = 0,
     thumb_every: int = 1,
     thumb_span_s: float = 0.0,
@@ -101,7 +100,6 @@ def drive_window(
     ({"frame": (k,), "image": (k, h, w, 3)}; empty when thumb_width is 0)."""
     from expoctl.features.pipeline import rgb_to_grey
     from expoctl.vo import track_sequence
-    from expoctl.vo_map import MapTracker, MapTrackerConfig
 
     timed = TimedController(controller)
     rows: list[dict] = []
@@ -113,9 +111,8 @@ def drive_window(
     n = len(window.frames)
     gt = None if window.gt_poses is None else np.asarray(window.gt_poses)[:n]
     # the stricter, ORB-SLAM2-like test tracks the same frames against a local map (expoctl.vo_map)
-    map_cfg = vo_map or VoMapConfig()
-    map_tracker = MapTracker(K, MapTrackerConfig(n_features=vo_n_features, **dataclasses.asdict(map_cfg)), gt,
-                             seed=pair_seed(window.sequence, 0, "vo_map"))
+    map_cfg = vo_map or MapTrackerConfig(n_features=vo_n_features)
+    map_tracker = MapTracker(K, map_cfg, gt, seed=pair_seed(window.sequence, 0, "vo_map"))
 
     def frames_and_stats():
         loop = run_closed_loop(scene, [sensor], timed, initial, window.frames, seed, warmup_frames=warmup_frames)

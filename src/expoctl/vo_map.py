@@ -64,7 +64,7 @@ def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=-1, dtype=np.int32)
 
 
-@dataclass
+@dataclass(frozen=True)
 class MapTrackerConfig:
     min_inliers: int = 30
     n_features: int = 2000
