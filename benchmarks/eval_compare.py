@@ -7,7 +7,8 @@ controller the median exposure product (EV), grey level, clipped share and gain 
 deep each controller's worst transition goes (mean dynamic-section minimum ORB NFM over mean static-section median,
 next to the paper's Table I, where ORB-SLAM2 lost track with AG+AE at 0.09 and kept it with theirs at 0.16); then
 the VO margin table of the report (each run's worst frame pair) over the pooled runs, and, for evaluations that
-ran it, the map-tracking VO's successes and margins (each run's fewest map inliers).
+ran it, the map-tracking VO's successes and margins (each run's fewest map inliers), how fast its map fills, and
+its margins scored from frame 8 (the tracker's bootstrap length) without runs lost before then.
 
     .venv/bin/python benchmarks/eval_compare.py [REPORTS_DIR ...]     (default: reports; each holds eval/)
 
@@ -107,7 +108,31 @@ def main() -> int:
             lambda v: f"{int(v.astype(bool).sum())}/{len(v)}").rename("map-tracking VO successes").to_string())
         print()
         print(vo_margin_table(runs, (30, 50, 75, 100, 150), "vo_map_min_inliers"))
+        print()
+        print(map_fill_and_late_margins(frames, runs, MAP_SCORED_FROM))
     return 0
+
+
+#: the map tracker's default bootstrap length (expoctl.vo_map): frames before it only build the map
+MAP_SCORED_FROM = 8
+
+
+def map_fill_and_late_margins(frames: pd.DataFrame, runs: pd.DataFrame, first: int) -> str:
+    """How fast the map fills (median map inliers over runs by frame index), then the map-VO margins scored from frame
+    `first` on, leaving out runs that were lost before it (evaluations made with a shorter bootstrap)."""
+    from expoctl.report import vo_margin_table
+
+    fill = frames[frames.frame <= 10].groupby("frame").vo_map_n_inliers.median()
+    lines = ["median map inliers by frame: " + ", ".join(f"{int(k)}: {v:.0f}" for k, v in fill.dropna().items())]
+    early = runs[(runs.vo_map_failed_at >= 0) & (runs.vo_map_failed_at < first)]
+    lines.append(f"runs lost before frame {first} (left out): "
+                 + (", ".join(f"{r.run_id} at {int(r.vo_map_failed_at)}" for r in early.itertuples()) or "none"))
+    late = frames[(frames.frame >= first) & ~frames.run_id.isin(early.run_id)]
+    worst = late.groupby("run_id").vo_map_n_inliers.min().rename("vo_map_min_inliers")
+    kept = runs.drop(columns="vo_map_min_inliers").merge(worst, left_on="run_id", right_index=True)
+    lines += ["", f"map-tracking VO margin, scored from frame {first}:",
+              vo_margin_table(kept, (30, 50, 75, 100, 150), "vo_map_min_inliers")]
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

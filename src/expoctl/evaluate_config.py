@@ -126,11 +126,11 @@ def vo_map_config_from_dict(d: Any, key: str, n_features: int) -> MapTrackerConf
     if not isinstance(d, dict):
         raise ConfigError(key, f"must be a mapping, got {d!r}")
     _no_unknown(d, set(MapTrackerConfig.__dataclass_fields__) - {"n_features"}, key)
-    lows = {"min_inliers": 6, "keyframe_every": 1, "local_keyframes": 2, "triangulate_keyframes": 1,
-            "bootstrap_frames": 2}
-    kw: dict = {name: _int(d[name], f"{key}.{name}", lo) for name, lo in lows.items() if name in d}
+    kw: dict = {name: _int(d[name], f"{key}.{name}", lo)
+                for name, lo in MapTrackerConfig.INT_MINIMA.items() if name in d}
     if "search_radius_px" in d:
-        kw["search_radius_px"] = _num(d["search_radius_px"], f"{key}.search_radius_px", 1.0, 200.0)
+        kw["search_radius_px"] = _num(d["search_radius_px"], f"{key}.search_radius_px",
+                                      *MapTrackerConfig.SEARCH_RADIUS_RANGE_PX)
     return MapTrackerConfig(n_features=n_features, **kw)
 
 

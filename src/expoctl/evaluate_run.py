@@ -3,8 +3,9 @@
 Per frame t (camera 1 only): the settings the frame was captured with, image statistics, and for each front end
 (ORB, libviso2-style), on the raw grey image and on its SumLog transform, the feature count and the matches /
 inlier matches (NFM) with frame t−1. The whole frame sequence also goes through monocular VO for the tracking-success
-test, twice: frame to frame (`expoctl.vo`) and against a local map with ORB-SLAM2's thresholds (`expoctl.vo_map`). Every controller of a window sees the same scene, sensor (same randomised parameters
-and fixed-pattern noise) and per-frame noise seeds, so their differences come from the settings alone.
+test, twice: frame to frame (`expoctl.vo`) and against a local map with ORB-SLAM2's thresholds (`expoctl.vo_map`).
+Every controller of a window sees the same scene, sensor (same randomised parameters and fixed-pattern noise) and
+per-frame noise seeds, so their differences come from the settings alone.
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ import cv2
 import numpy as np
 
 from expoctl.controllers.base import Controller, Settings
-from expoctl.vo_map import MapTracker, MapTrackerConfig
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
 from expoctl.rig.closed_loop import run_closed_loop
+from expoctl.vo_map import MapTracker, MapTrackerConfig
 
 #: front-end keys of metrics.json / frames.parquet: raw and SumLog variants of each front end
 VARIANTS = ("orb", "viso", "orb_sumlog", "viso_sumlog")

@@ -74,15 +74,19 @@ class MapTrackerConfig:
     bootstrap_frames: int = 8
     triangulate_keyframes: int = 20
 
+    #: the smallest value of each integer setting, and the search radius's range (px); config readers use them too
+    INT_MINIMA = {"min_inliers": 6, "n_features": 10, "keyframe_every": 1, "local_keyframes": 2,
+                  "bootstrap_frames": 2, "triangulate_keyframes": 1}
+    SEARCH_RADIUS_RANGE_PX = (1.0, 200.0)
+
     def validate(self) -> None:
-        for name, lo in (("min_inliers", 6), ("n_features", 10), ("keyframe_every", 1), ("local_keyframes", 2),
-                         ("bootstrap_frames", 2), ("triangulate_keyframes", 1)):
+        for name, lo in self.INT_MINIMA.items():
             v = getattr(self, name)
             if isinstance(v, bool) or int(v) != v or v < lo:
                 raise InputError(f"vo map tracker: {name} must be an integer >= {lo}, got {v!r}")
-        r = self.search_radius_px
-        if not (isinstance(r, (int, float)) and np.isfinite(r) and 1.0 <= r <= 200.0):
-            raise InputError(f"vo map tracker: search_radius_px must be in [1, 200] px, got {r!r}")
+        r, (lo, hi) = self.search_radius_px, self.SEARCH_RADIUS_RANGE_PX
+        if not (isinstance(r, (int, float)) and np.isfinite(r) and lo <= r <= hi):
+            raise InputError(f"vo map tracker: search_radius_px must be in [{lo:g}, {hi:g}] px, got {r!r}")
 
 
 @dataclass
