@@ -125,8 +125,12 @@ def map_fill_and_late_margins(frames: pd.DataFrame, runs: pd.DataFrame, first: i
     fill = frames[frames.frame <= 10].groupby("frame").vo_map_n_inliers.median()
     lines = ["median map inliers by frame: " + ", ".join(f"{int(k)}: {v:.0f}" for k, v in fill.dropna().items())]
     early = runs[(runs.vo_map_failed_at >= 0) & (runs.vo_map_failed_at < first)]
-    lines.append(f"runs lost before frame {first} (left out): "
-                 + (", ".join(f"{r.run_id} at {int(r.vo_map_failed_at)}" for r in early.itertuples()) or "none"))
+    lost = []
+    for r in early.itertuples():
+        f = frames[(frames.run_id == r.run_id) & (frames.frame == r.vo_map_failed_at)].iloc[0]
+        lost.append(f"{r.run_id} at frame {int(r.vo_map_failed_at)} ({f.portal_kind} {f.portal_dt_s:+.1f} s, {f.section}, "
+                    f"{100 * f.saturated_frac:.0f} % clipped, {f.vo_map_n_inliers:.0f} map inliers)")
+    lines.append(f"runs lost before frame {first} (left out): " + ("; ".join(lost) or "none"))
     late = frames[(frames.frame >= first) & ~frames.run_id.isin(early.run_id)]
     worst = late.groupby("run_id").vo_map_n_inliers.min().rename("vo_map_min_inliers")
     kept = runs.drop(columns="vo_map_min_inliers").merge(worst, left_on="run_id", right_index=True)
