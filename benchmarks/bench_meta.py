@@ -9,7 +9,10 @@ from pathlib import Path
 
 
 def run_metadata() -> dict:
-    """cpu_count, 1-min load average at the time of writing, Python version and the command that produced it."""
+    """cpu_count, the host CPU (numba's target and the model name), 1-min load average at the time of writing, Python
+    version and the command that produced it."""
+    from expoctl.host import host_cpu  # the benchmarks put src/ on sys.path before importing this module
+
     script = Path(sys.argv[0])
-    return {"cpu_count": os.cpu_count(), "load_average_1min": os.getloadavg()[0], "python": platform.python_version(),
-            "command": " ".join([f"benchmarks/{script.name}", *sys.argv[1:]])}
+    return {"cpu_count": os.cpu_count(), "host_cpu": host_cpu(), "load_average_1min": os.getloadavg()[0],
+            "python": platform.python_version(), "command": " ".join([f"benchmarks/{script.name}", *sys.argv[1:]])}

@@ -32,6 +32,7 @@ from typing import Any, Callable, Iterator
 import yaml
 
 from expoctl.errors import InputError
+from expoctl.host import host_cpu
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 RESOLVED_CONFIG = PROJECT_ROOT / "configs" / "resolved.yaml"
@@ -236,7 +237,7 @@ def tracked_run(stage: str, cfg: dict[str, Any]) -> Iterator[Tracker]:
     with mlflow.start_run(experiment_id=experiment_id, run_name=stage):
         tracker = Tracker(mlflow)
         tracker.set_tags({"stage": stage, "git_commit": git_commit(), "config_hash": config_hash(sub),
-                          "scale": cfg.get("scale_name", "unknown")})
+                          "scale": cfg.get("scale_name", "unknown"), "host_cpu": host_cpu()})
         tracker.log_params(sub)
         t0 = time.perf_counter()
         yield tracker

@@ -28,6 +28,7 @@ def test_flatten():
 def test_tracked_run_logs_one_run_with_tags(tmp_path, monkeypatch):
     import mlflow
 
+    from expoctl.host import host_cpu
     from stages import common
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'm.db'}")
@@ -38,6 +39,7 @@ def test_tracked_run_logs_one_run_with_tags(tmp_path, monkeypatch):
         client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'm.db'}")
         (run,) = client.search_runs([client.get_experiment_by_name("expoctl").experiment_id])
         assert run.data.tags["stage"] == "ingest" and run.data.tags["scale"] == "fixture"
+        assert run.data.tags["host_cpu"] == host_cpu()  # which machine made the run: numba compiles for its CPU
         assert run.data.tags["config_hash"] == common.config_hash(common.select_keys(cfg, common.STAGE_KEYS["ingest"]))
         assert run.data.params["ingest.image_width"] == "8"
         assert run.data.metrics["n_images"] == 4 and run.data.metrics["nested.x"] == 1.5
