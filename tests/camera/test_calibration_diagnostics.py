@@ -116,3 +116,21 @@ def test_local_shift_fit_recovers_block_translations():
     empty, none = local_shift_fit(pred, real, np.zeros(pred.shape, bool))
     assert np.isnan(none).all()
     np.testing.assert_array_equal(empty, pred)
+
+
+def test_local_shift_fit_edge_blocks_when_tile_does_not_divide_the_image():
+    """A 100×72 image with 32-px tiles has 4×3 blocks whose last row / column are 4 / 8 px: every block, the clipped
+    ones included, finds the one global shift (0.3, −0.2) within 0.05 px, and the result keeps the image's shape.
+    (Before the fix the clipped blocks' pixel grids were tile-sized and the reshape failed.)"""
+    rng = np.random.default_rng(5)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (100, 72)), (0, 0), 3)
+    tex = 30 + 200 * (tex - tex.min()) / np.ptp(tex)
+    pred = np.repeat(tex[..., None], 3, -1).astype(np.float32)
+    yy, xx = np.mgrid[:100, :72].astype(np.float32)
+    real = cv2.remap(pred, xx + 0.3, yy - 0.2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    mask = np.zeros(pred.shape, bool)
+    mask[2:-2, 2:-2] = True
+    shifted, shifts = local_shift_fit(pred, real, mask, tile=32, min_samples=20)
+    assert shifted.shape == pred.shape
+    assert shifts.shape == (4, 3, 2)
+    np.testing.assert_allclose(shifts.reshape(-1, 2), [(0.3, -0.2)] * 12, atol=0.05)

@@ -424,7 +424,9 @@ def local_shift_fit(predicted: np.ndarray, real: np.ndarray, mask: np.ndarray, t
     shifts = np.full((ny, nx, 2), np.nan)
     for ty in range(ny):
         for tx in range(nx):
-            sl = (slice(ty * tile, (ty + 1) * tile), slice(tx * tile, (tx + 1) * tile))
+            # Edge blocks end at the image border when `tile` does not divide it (the pixel grid must match the
+            # mask's clipped block, so the slices are clipped here rather than left to numpy indexing).
+            sl = (slice(ty * tile, min((ty + 1) * tile, h)), slice(tx * tile, min((tx + 1) * tile, w)))
             mm = np.asarray(mask, bool)[sl]
             if mm.sum() < min_samples:
                 continue
