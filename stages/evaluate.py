@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from expoctl.evaluate import evaluate, metrics_summary, write_outputs
+from expoctl.host import host_cpu
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -94,8 +95,9 @@ def log_child_runs(result, tracker) -> list[str]:
         for split, ctrls in result.metrics.items():
             city = str(result.runs[result.runs.route_split == split]["city"].iloc[0])
             for ctrl in ctrls:
+                # host_cpu as on the stage run: the children carry per-frame timings and are searched on their own
                 tags = {"stage": "evaluate", "controller": ctrl, "city": city, "route_split": split,
-                        "parent_stage_run": parent}
+                        "parent_stage_run": parent, "host_cpu": host_cpu()}
                 with mlflow.start_run(run_name=f"{ctrl} @ {city}", experiment_id=experiment_id, nested=True,
                                       tags=tags) as child:
                     mlflow.log_params({"controller": ctrl, "city": city, "route_split": split})

@@ -100,13 +100,15 @@ def run_trial(cfg: dict, sweep: dict, parent_run_id: str | None) -> float:
     """Train one trial as a child MLflow run; returns the objective (inf when the sampled config is invalid)."""
     import mlflow
 
+    from expoctl.host import host_cpu
     from stages.common import flatten, git_commit, init_tracking
     from stages.train import configs, train_from_config
 
     values = sample_trial(sweep["space"], int(sweep["seed"]), int(sweep["trial"]))
     experiment_id = init_tracking(sweep["experiment"])
     with mlflow.start_run(experiment_id=experiment_id, run_name=f"trial_{sweep['trial']}",
-                          parent_run_id=parent_run_id, tags={"stage": "sweep_trial", "git_commit": git_commit()}):
+                          parent_run_id=parent_run_id,
+                          tags={"stage": "sweep_trial", "git_commit": git_commit(), "host_cpu": host_cpu()}):
         mlflow.log_params({"trial": sweep["trial"], **{f"sampled.{k}": v for k, v in values.items()}})
         try:
             trial_cfg, overrides = apply_trial(cfg, values)

@@ -20,6 +20,8 @@ import mlflow
 import pytest
 from eval_fixtures import make_fixture_project, use_real_or_test_sensor
 
+from expoctl.host import host_cpu
+
 STARTUP_TIMEOUT_S = 240.0  # a loaded shared 2-core machine took 87 s to start it
 
 
@@ -107,6 +109,7 @@ def test_server_serves_one_run_per_controller_and_city(tmp_path, mlflow_server, 
     assert pairs == {(c, s) for c in ("agae", "oracle") for s in ("validation", "test")}
     assert all(t["mlflow.parentRunId"] == parent for t in tags)
     assert {t["city"] for t in tags} == {"validation", "test"}
+    assert {t["host_cpu"] for t in tags} == {host_cpu()}  # per-frame timings name their machine, like the stage run
     for run, t in zip(children, tags):
         served = {m["key"]: m["value"] for m in run["data"]["metrics"]}
         expected = metrics[t["route_split"]][t["controller"]]

@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from expoctl.errors import ConfigError
+from expoctl.host import host_cpu
 from expoctl.synthetic_data import make_synthetic_dataset
 from stages.sweep import apply_trial, sample_trial
 
@@ -61,6 +62,7 @@ def test_two_trial_sweep_at_fixture_scale(tmp_path):
     parent = client.get_run(best["parent_run_id"])
     children = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent.info.run_id}'")
     assert sorted(r.data.params["trial"] for r in children) == ["0", "1"]
+    assert {r.data.tags["host_cpu"] for r in children} == {host_cpu()}  # a trial's throughput names its machine
     objectives = {r.info.run_id: r.data.metrics["objective"] for r in children}
     assert best["best_run_id"] == min(objectives, key=objectives.get)
     assert parent.data.metrics["best_objective"] == pytest.approx(min(objectives.values()))
