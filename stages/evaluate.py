@@ -91,13 +91,13 @@ def log_child_runs(result, tracker) -> list[str]:
     active = mlflow.active_run()
     parent, experiment_id = active.info.run_id, active.info.experiment_id
     ids = []
+    host = host_cpu()  # as on the stage run: the children carry per-frame timings and are searched on their own
     with tempfile.TemporaryDirectory() as tmp:
         for split, ctrls in result.metrics.items():
             city = str(result.runs[result.runs.route_split == split]["city"].iloc[0])
             for ctrl in ctrls:
-                # host_cpu as on the stage run: the children carry per-frame timings and are searched on their own
                 tags = {"stage": "evaluate", "controller": ctrl, "city": city, "route_split": split,
-                        "parent_stage_run": parent, "host_cpu": host_cpu()}
+                        "parent_stage_run": parent, "host_cpu": host}
                 with mlflow.start_run(run_name=f"{ctrl} @ {city}", experiment_id=experiment_id, nested=True,
                                       tags=tags) as child:
                     mlflow.log_params({"controller": ctrl, "city": city, "route_split": split})
