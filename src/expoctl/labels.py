@@ -165,7 +165,7 @@ def index_frames(frames: pd.DataFrame, name: str = "frames") -> FrameIndex:
     if bad.any():
         raise _where(name, df[bad], f"camera must be 1 or 2, got {df['camera'][bad].iloc[0]}")
     for col, lo, hi in (("gain_db", ranges.GAIN_DB_MIN, ranges.GAIN_DB_MAX),
-                        ("exposure_us", ranges.EXPOSURE_US_MIN, ranges.EXPOSURE_US_MAX)):
+                        ("exposure_us", ranges.SENSOR_EXPOSURE_US_MIN, ranges.EXPOSURE_US_MAX)):
         v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
         tol = 1e-6 * (hi - lo)
         bad = ~np.isfinite(v) | (v < lo - tol) | (v > hi + tol)

@@ -86,7 +86,7 @@ def build_samples(frames: pd.DataFrame, labels: pd.DataFrame, cfg: SampleConfig 
     if dup.any():
         raise _where(names["labels"], lab[dup], f"duplicate {cfg.metric} label")
     for col, lo, hi in (("gain_db", ranges.GAIN_DB_MIN, ranges.GAIN_DB_MAX),
-                        ("exposure_us", ranges.EXPOSURE_US_MIN, ranges.EXPOSURE_US_MAX)):
+                        ("exposure_us", ranges.SENSOR_EXPOSURE_US_MIN, ranges.EXPOSURE_US_MAX)):
         v = pd.to_numeric(lab[col], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
         tol = 1e-6 * (hi - lo)
         bad = ~np.isfinite(v) | (v < lo - tol) | (v > hi + tol)

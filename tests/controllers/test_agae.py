@@ -66,7 +66,7 @@ def test_response_curve_is_configurable():
 def test_damping_fraction_and_one_extra_frame_of_latency():
     """Frame 0 is metered but only acted upon at the second update (internal latency 1); then (1-damping) of the
     log error is corrected."""
-    c = AgAeController({"damping": 0.2, "max_step_ev": 10.0})
+    c = AgAeController({"damping": 0.2, "max_brighten_ev_per_frame": 10.0})
     s0 = Settings(0.0, 1000.0)
     c.reset(s0)
     dark = np.full((8, 8, 3), linear_to_8bit(np.array(0.09))[()], np.uint8)  # ≈ 1 EV under the 18 % target
@@ -77,12 +77,41 @@ def test_damping_fraction_and_one_extra_frame_of_latency():
 
 
 def test_step_limit_caps_each_frame_change():
-    c = AgAeController({"internal_latency_frames": 0, "max_step_ev": 0.5})
+    c = AgAeController({"internal_latency_frames": 0, "damping": 0.2, "max_brighten_ev_per_frame": 0.5,
+                        "max_darken_ev_per_frame": 0.5})
     c.reset(Settings(0.0, 1000.0))
     out = c.update(np.zeros((8, 8, 3), np.uint8), Settings(0.0, 1000.0))
     assert out.exposure_us == pytest.approx(1000.0 * 2**0.5)
     out = c.update(np.full((8, 8, 3), 255, np.uint8), Settings(0.0, 1000.0))
     assert out.exposure_us == pytest.approx(1000.0)  # back down 0.5 EV from the internal command
+
+
+def test_darkening_and_brightening_limits_are_separate():
+    """The real camera brightened by up to 0.51 EV in one frame at the entry but never darkened faster than
+    0.178 EV per frame at the exit: a black frame steps up by the first, a white one down by the second."""
+    c = AgAeController({"internal_latency_frames": 0, "damping": 0.0})
+    c.reset(Settings(0.0, 1000.0))
+    up = c.update(np.zeros((8, 8, 3), np.uint8), Settings(0.0, 1000.0))
+    assert math.log2(up.exposure_us / 1000.0) == pytest.approx(0.51)
+    c.reset(Settings(0.0, 1000.0))
+    down = c.update(np.full((8, 8, 3), 255, np.uint8), Settings(0.0, 1000.0))
+    assert math.log2(down.exposure_us / 1000.0) == pytest.approx(-0.178)
+
+
+def test_fitted_loop_shrinks_consecutive_steps_by_the_recorded_ratio():
+    """After a darkening of the scene, consecutive exposure increases shrink by `damping` per frame (0.873, the
+    recorded entry), whatever the latency, because the AE meters each frame against the settings it was shot with."""
+    from expoctl.controllers.ae_trace import entry_stats, ev_trace
+
+    scene = _scene(3) * 0.3
+    for latency in (1, 2):
+        c = AgAeController({"internal_latency_frames": latency})
+        frames = [scene] * 40
+        applied = _run_closed_loop(c, frames, Settings(0.0, 400.0))
+        ev = ev_trace([s.exposure_us for s in applied], [s.gain_db for s in applied])
+        st = entry_stats(ev, min_step_ev=0.01)
+        assert st.shrink_ratio == pytest.approx(0.873, abs=0.01)
+        assert st.first_step_frame == 1 + latency  # the first change lands latency + 1 frames after frame 0
 
 
 def test_exposure_first_split_and_clamps():
@@ -92,7 +121,7 @@ def test_exposure_first_split_and_clamps():
     assert s.exposure_us == pytest.approx(30000.0) and s.gain_db == pytest.approx(12.0)
     s = c.split(math.log(30000.0 * 10 ** (40 / 20)))
     assert _close(s, Settings(30.0, 30000.0))
-    assert _close(c.split(math.log(10.0)), Settings(0.0, 75.0))
+    assert _close(c.split(math.log(10.0)), Settings(0.0, 19.0))  # the camera's own floor, below the network's 75 µs
 
 
 def test_gain_first_priority_moves_gain_at_fixed_exposure():
@@ -115,7 +144,7 @@ def test_black_and_saturated_frames_give_finite_clamped_settings(code):
         s = c.update(img, s)
         assert np.isfinite([s.gain_db, s.exposure_us]).all()
         assert s == s.clamped()
-    assert s == (Settings(30.0, 30000.0) if code == 0 else Settings(0.0, 75.0))  # pinned at the limits
+    assert s == (Settings(30.0, 30000.0) if code == 0 else Settings(0.0, 19.0))  # pinned at the camera's limits
 
 
 def test_metering_modes_see_only_their_region():
@@ -131,15 +160,15 @@ def test_metering_modes_see_only_their_region():
 P_DARK = 30000.0 * 10.0
 
 
-def _settling_frames(ev_step: float) -> tuple[int, list[float]]:
+def _settling_frames(ev_step: float, params: dict | None = None) -> tuple[int, list[float]]:
     """Start settled on one scene, step its radiance by `ev_step` EV, count frames until the product stays within
     1/3 EV of its final value. Returns (frames after the step, per-frame EV changes)."""
     scene = _scene()
     lin_mean = np.mean(np.clip(scene * 0.1, 0, 1)) / 0.1  # mean radiance (no clipping at this scale)
     dark = scene * 0.18 * P_REF / (P_DARK * lin_mean)
     first, second = (dark, dark * 2**ev_step) if ev_step > 0 else (dark * 2**-ev_step, dark)
-    n_before, n_after = 40, 60
-    c = AgAeController()
+    n_before, n_after = 40, 90
+    c = AgAeController(params)
     applied = _run_closed_loop(c, [first] * n_before + [second] * n_after, Settings(0.0, 5000.0))
     # settled = the product is within 1/3 EV (one EV-compensation step) of its final value from then on
     ev = np.array([exposure_value_ev(s.gain_db, s.exposure_us) for s in applied])
@@ -148,15 +177,27 @@ def _settling_frames(ev_step: float) -> tuple[int, list[float]]:
     return last_off + 1, list(np.diff(ev))
 
 
-def test_step_response_10_ev_exit_is_rate_limited():
-    """A 10 EV brightening (tunnel exit): saturated frames meter m≈1 so the 0.5 EV/frame limit sets the pace.
-    Settling needs ≥ 10/0.5 − 5 frames (the last ~2.5 EV are seen unsaturated) plus 2 frames of latency;
-    no frame-to-frame change exceeds 0.5 EV."""
-    frames, dev = _settling_frames(10.0)
+OLD_LOOP = {"damping": 0.2, "max_brighten_ev_per_frame": 0.5, "max_darken_ev_per_frame": 0.5}
+
+
+def test_old_loop_step_response_10_ev_exit_is_rate_limited():
+    """The old loop (still reachable as config): a 10 EV brightening (tunnel exit) meters m≈1 on saturated frames, so
+    the 0.5 EV/frame limit sets the pace. Settling needs ≥ 10/0.5 − 5 frames (the last ~2.5 EV are seen unsaturated)
+    plus 2 frames of latency; no frame-to-frame change exceeds 0.5 EV."""
+    frames, dev = _settling_frames(10.0, OLD_LOOP)
     assert 17 <= frames <= 25, frames
     assert max(abs(d) for d in dev) <= 0.5 + 1e-9
-    frames_down, _ = _settling_frames(-10.0)  # tunnel entry: black frames, metering floor, same limit
+    frames_down, _ = _settling_frames(-10.0, OLD_LOOP)  # tunnel entry: black frames, metering floor, same limit
     assert 17 <= frames_down <= 25, frames_down
+
+
+def test_fitted_loop_10_ev_exit_takes_the_real_cameras_time():
+    """The fitted loop darkens by at most 0.178 EV per frame. While saturated (the first ~7.5 of 10 EV) it runs at
+    that limit: ≥ 7.5 / 0.178 = 42 frames; the last ~2.5 EV, seen unsaturated, decay by 0.873 per frame:
+    ln(2.5 / (1/3)) / −ln 0.873 ≈ 15 more frames, plus 2 of latency: at most ~60 frames (4 s at 15 Hz)."""
+    frames, dev = _settling_frames(10.0)
+    assert 42 <= frames <= 60, frames
+    assert -min(dev) == pytest.approx(0.178, abs=1e-6)  # the darkening limit is reached, and never exceeded
 
 
 def test_settles_to_the_target_grey_without_oscillation():
@@ -176,7 +217,9 @@ def test_settles_to_the_target_grey_without_oscillation():
         ({"target_grey_pct": 0}, "controllers.agae.target_grey_pct"),
         ({"metering_mode": "matrix"}, "controllers.agae.metering_mode"),
         ({"roi": [0.5, 0, 0.2, 1]}, "controllers.agae.roi"),
-        ({"max_step_ev": "x"}, "controllers.agae.max_step_ev"),
+        ({"max_darken_ev_per_frame": "x"}, "controllers.agae.max_darken_ev_per_frame"),
+        ({"max_brighten_ev_per_frame": 0.0}, "controllers.agae.max_brighten_ev_per_frame"),
+        ({"exposure_lower_us": 5.0}, "controllers.agae.exposure_upper_us"),
         ({"exposure_upper_us": 50000.0}, "controllers.agae.exposure_upper_us"),
         ({"dampnig": 0.2}, "controllers.agae.dampnig"),
         ({"internal_latency_frames": 1.5}, "controllers.agae.internal_latency_frames"),

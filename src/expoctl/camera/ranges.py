@@ -16,8 +16,13 @@ import numpy as np
 
 GAIN_DB_MIN = 0.0
 GAIN_DB_MAX = 30.0
-EXPOSURE_US_MIN = 75.0
+EXPOSURE_US_MIN = 75.0  # the network's (the paper's) range; labels are scaled over it
 EXPOSURE_US_MAX = 30000.0
+# The camera's own shortest exposure, which its built-in AG+AE may use: FLIR documents 19 µs for the Blackfly S
+# BFS-U3-32S4 (IMX252, the same 3.45 µm Pregius pixel and readout family as the rig's IMX265 BFS-U3-31S4, whose own
+# page was not available to us). The simulated sensor, raw recordings and camera settings accept it; the network's
+# outputs stay within [EXPOSURE_US_MIN, EXPOSURE_US_MAX].
+SENSOR_EXPOSURE_US_MIN = 19.0
 
 
 def gain_to_norm(gain_db):
@@ -69,10 +74,10 @@ def rescale_exposure_norm(exposure_norm, from_scale: str, to_scale: str):
 
 
 def clamp_settings(gain_db: float, exposure_us: float) -> tuple[float, float]:
-    """Clamp a (gain dB, exposure µs) pair into the camera's valid range."""
+    """Clamp a (gain dB, exposure µs) pair into the camera's valid range (exposure down to the sensor's floor)."""
     return (
         float(np.clip(gain_db, GAIN_DB_MIN, GAIN_DB_MAX)),
-        float(np.clip(exposure_us, EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
+        float(np.clip(exposure_us, SENSOR_EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
     )
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.camera.response import Response, response_from_config
 from expoctl.errors import ConfigError, InputError
 
@@ -226,8 +226,8 @@ class Sensor:
         return e_sat / (float(self._photons_per_cd_m2_us) * exposure_us * cfg.quantum_efficiency)
 
     def _check(self, luminance: np.ndarray, exposure_us: float, gain_db: float) -> None:
-        if not (_finite_number(exposure_us) and EXPOSURE_US_MIN <= exposure_us <= EXPOSURE_US_MAX):
-            raise InputError(f"exposure_us {exposure_us!r} outside {EXPOSURE_US_MIN:g}–{EXPOSURE_US_MAX:g} µs")
+        if not (_finite_number(exposure_us) and SENSOR_EXPOSURE_US_MIN <= exposure_us <= EXPOSURE_US_MAX):
+            raise InputError(f"exposure_us {exposure_us!r} outside {SENSOR_EXPOSURE_US_MIN:g}–{EXPOSURE_US_MAX:g} µs")
         if not (_finite_number(gain_db) and GAIN_DB_MIN <= gain_db <= GAIN_DB_MAX):
             raise InputError(f"gain_db {gain_db!r} outside {GAIN_DB_MIN:g}–{GAIN_DB_MAX:g} dB")
         if luminance.shape != (self.height, self.width, 3):

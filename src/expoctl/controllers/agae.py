@@ -5,11 +5,16 @@ Loop, per frame (controllers.md §1 "Simulator model", [our assumption, to be ca
    partial ≈ 11 %, centred, or a fractional ROI).
 2. The frame was shot with a known product P_f = t·10^(g/20) (the camera knows its own settings, like chunk data),
    so the product that would have hit the target is ln P* = ln P_f + ln(target·2^EVcomp / m).
-3. The internal command moves towards it: ln P ← ln P + (1 − damping)·(ln P* − ln P), with the step clipped to
-   ±max_step_ev per frame. Using the frame's own P_f (not the last command) keeps the loop from oscillating through
-   its latency; in steady state this is exactly the spec's ln P ← ln P + (1 − damping)·ln(target/m).
-   A saturated frame reads m ≈ 1, so the error is under-estimated and the step limit sets the pace at tunnel exits
-   (the authors' recordings changed P by at most ~0.5 EV/frame).
+3. The internal command moves towards it: ln P ← ln P + (1 − damping)·(ln P* − ln P), with a brightening step
+   clipped to `max_brighten_ev_per_frame` and a darkening step to `max_darken_ev_per_frame`. Using the frame's own
+   P_f (not the last command) keeps the loop from oscillating through its latency; in steady state this is exactly
+   the spec's ln P ← ln P + (1 − damping)·ln(target/m). A saturated frame reads m ≤ 1, so the error is
+   under-estimated and the darkening limit sets the pace at tunnel exits.
+   Defaults fitted to the real camera's recorded tunnel pass (`expoctl.controllers.ae_trace`, benchmarks/agae_fit.py):
+   consecutive entry steps shrink by 0.873 per frame → damping 0.873 (the loop corrects 12.7 % of its error per
+   frame); the largest exit step was 0.178 EV → the darkening limit; the entry's one 0.507 EV step → the brightening
+   limit (it did not bind there, so it is a lower bound). The old loop (damping 0.2, ±0.5 EV) is 3–5× faster at exits
+   than the real camera; it stays reachable as config.
 4. Split P exposure-first ("Gain" priority in Spinnaker's misleading naming): gain stays at its lower limit until
    exposure reaches its upper limit (30 ms), then gain rises. The alternative "gain_first" priority holds exposure at
    `gain_first_exposure_us` (Spinnaker default 5 ms) and moves gain first.
@@ -25,7 +30,7 @@ from collections import deque
 
 import numpy as np
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.camera.response import response_from_config
 from expoctl.controllers.base import Controller, Settings
 from expoctl.controllers.metrics import METERING_AREA_FRACTION, ResponseInverse, metered_linear_mean
@@ -36,13 +41,15 @@ _DB_PER_LN = 20.0 / math.log(10.0)  # gain dB per natural-log unit of linear gai
 DEFAULTS: dict = {
     "target_grey_pct": 18.0,  # linear, % of full scale; 18 % ≈ code 118 through sRGB [our assumption; read it back]
     "ev_compensation": 0.0,  # EV, Spinnaker range −3 … +3
-    "damping": 0.2,  # AutoExposureControlLoopDamping, SDK-header default (web page says 0.5)
-    "max_step_ev": 0.5,  # per-frame limit on the change of t·gain (authors' recordings: ≤ ~0.5 EV/frame)
+    # fitted to the recorded trace (module doc); the SDK header's default is 0.2, the BFS web page's 0.5
+    "damping": 0.873,  # fraction of the log error left after one frame (entry steps shrink by this ratio)
+    "max_brighten_ev_per_frame": 0.51,  # recorded entry: one 0.507 EV step (the largest increase)
+    "max_darken_ev_per_frame": 0.178,  # recorded exit: the largest single-frame decrease
     "metering_mode": "average",  # average | spot | partial
     "roi": None,  # optional [x0, y0, x1, y1] fractions of width/height; overrides metering_mode
     "priority": "exposure_first",  # exposure_first (Spinnaker "Gain") | gain_first (Spinnaker "ExposureTime")
     "gain_first_exposure_us": 5000.0,
-    "exposure_lower_us": EXPOSURE_US_MIN,
+    "exposure_lower_us": SENSOR_EXPOSURE_US_MIN,  # the camera's own floor, below the network's 75 µs
     "exposure_upper_us": EXPOSURE_US_MAX,
     "gain_lower_db": GAIN_DB_MIN,
     "gain_upper_db": GAIN_DB_MAX,
@@ -63,7 +70,7 @@ def ln_exposure_product(s: Settings) -> float:
     return math.log(s.exposure_us) + s.gain_db / _DB_PER_LN
 
 
-def split_exposure_first(ln_p: float, t_lo: float = EXPOSURE_US_MIN, t_hi: float = EXPOSURE_US_MAX,
+def split_exposure_first(ln_p: float, t_lo: float = SENSOR_EXPOSURE_US_MIN, t_hi: float = EXPOSURE_US_MAX,
                          g_lo: float = GAIN_DB_MIN, g_hi: float = GAIN_DB_MAX) -> Settings:
     """Spend an exposure product on exposure time first (gain at g_lo until t reaches t_hi), within the limits."""
     t = float(np.clip(math.exp(ln_p - g_lo / _DB_PER_LN), t_lo, t_hi))
@@ -76,7 +83,8 @@ def _validate(p: dict, prefix: str) -> None:
     require(0.0 < p["target_grey_pct"] < 100.0, k + "target_grey_pct", "must be in (0, 100) percent of full scale")
     require(-3.0 <= p["ev_compensation"] <= 3.0, k + "ev_compensation", "must be in [-3, 3] EV")
     require(0.0 <= p["damping"] < 1.0, k + "damping", "must be in [0, 1)")
-    require(p["max_step_ev"] > 0.0, k + "max_step_ev", "must be > 0")
+    for key in ("max_brighten_ev_per_frame", "max_darken_ev_per_frame"):
+        require(p[key] > 0.0, k + key, "must be > 0 EV per frame")
     require(p["metering_mode"] in METERING_AREA_FRACTION, k + "metering_mode", f"must be one of {sorted(METERING_AREA_FRACTION)}")
     roi = p["roi"]
     if roi is not None:
@@ -86,9 +94,9 @@ def _validate(p: dict, prefix: str) -> None:
         require(ok, k + "roi", "must be null or [x0, y0, x1, y1] with 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1")
     require(p["priority"] in ("exposure_first", "gain_first"), k + "priority", "must be exposure_first or gain_first")
     require(
-        EXPOSURE_US_MIN <= p["exposure_lower_us"] <= p["exposure_upper_us"] <= EXPOSURE_US_MAX,
+        SENSOR_EXPOSURE_US_MIN <= p["exposure_lower_us"] <= p["exposure_upper_us"] <= EXPOSURE_US_MAX,
         k + "exposure_upper_us",
-        f"need {EXPOSURE_US_MIN} <= exposure_lower_us <= exposure_upper_us <= {EXPOSURE_US_MAX}",
+        f"need {SENSOR_EXPOSURE_US_MIN} <= exposure_lower_us <= exposure_upper_us <= {EXPOSURE_US_MAX}",
     )
     require(
         GAIN_DB_MIN <= p["gain_lower_db"] <= p["gain_upper_db"] <= GAIN_DB_MAX,
@@ -124,7 +132,8 @@ class AgAeController(Controller):
             response_inverse = response_from_config(p, config_key).uint8_to_linear
         self.response_inverse = response_inverse
         self.target_linear = p["target_grey_pct"] / 100.0 * 2.0 ** p["ev_compensation"]
-        self._max_step_ln = p["max_step_ev"] * math.log(2.0)
+        self._max_up_ln = p["max_brighten_ev_per_frame"] * math.log(2.0)
+        self._max_down_ln = p["max_darken_ev_per_frame"] * math.log(2.0)
         # achievable range of ln P (P in µs × linear gain); the command never winds up beyond it
         self._ln_p_min = math.log(p["exposure_lower_us"]) + p["gain_lower_db"] / _DB_PER_LN
         self._ln_p_max = math.log(p["exposure_upper_us"]) + p["gain_upper_db"] / _DB_PER_LN
@@ -141,7 +150,7 @@ class AgAeController(Controller):
         if len(self._pending) > self.params["internal_latency_frames"]:
             ln_target = self._pending.popleft()
             step = (1.0 - self.params["damping"]) * (ln_target - self._ln_p)
-            step = float(np.clip(step, -self._max_step_ln, self._max_step_ln))
+            step = float(np.clip(step, -self._max_down_ln, self._max_up_ln))
             self._ln_p = float(np.clip(self._ln_p + step, self._ln_p_min, self._ln_p_max))
         return self.split(self._ln_p)
 

@@ -185,7 +185,7 @@ class RenderConfig:
 
     width: int = 640
     height: int = 480
-    hfov_deg: float = 70.0
+    hfov_deg: float = 59.1  # the paper's 6.23 mm lens on the IMX265 (7.07 mm wide): 2·atan(3.535 / 6.23)
     options: tuple[tuple[str, Any], ...] = ()
 
     @classmethod

@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
 from expoctl.rig.closed_loop import (
@@ -85,9 +85,9 @@ class CollectConfig:
         if not GAIN_DB_MIN <= gain <= GAIN_DB_MAX:
             raise ConfigError(f"{key}.initial_gain_db", f"must be in [{GAIN_DB_MIN}, {GAIN_DB_MAX}] dB, got {gain}")
         exposure = _num(d, "initial_exposure_us", key)
-        if not EXPOSURE_US_MIN <= exposure <= EXPOSURE_US_MAX:
+        if not SENSOR_EXPOSURE_US_MIN <= exposure <= EXPOSURE_US_MAX:
             raise ConfigError(f"{key}.initial_exposure_us",
-                              f"must be in [{EXPOSURE_US_MIN}, {EXPOSURE_US_MAX}] µs, got {exposure}")
+                              f"must be in [{SENSOR_EXPOSURE_US_MIN}, {EXPOSURE_US_MAX}] µs, got {exposure}")
         warmup = _int(d, "warmup_frames", key, 0)
         amp = _num(d, "sensor_randomisation", key)
         if not 0.0 <= amp <= 0.5:
