@@ -107,7 +107,7 @@ def test_capture_equals_raw_path_and_is_deterministic():
 
 
 @pytest.mark.parametrize("exposure,gain,words", [
-    (50.0, 0.0, "exposure_us"), (31000.0, 0.0, "exposure_us"), (float("nan"), 0.0, "exposure_us"),
+    (15.0, 0.0, "exposure_us"), (31000.0, 0.0, "exposure_us"), (float("nan"), 0.0, "exposure_us"),
     (1000.0, -1.0, "gain_db"), (1000.0, float("nan"), "gain_db"), (1000.0, 31.0, "gain_db")])
 def test_bad_settings_raise(exposure, gain, words):
     with pytest.raises(InputError, match=words):
