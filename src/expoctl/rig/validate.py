@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.errors import InputError
 from expoctl.rig.raw import (
     FRAMES_COLUMNS,
@@ -37,7 +37,7 @@ _NUMERIC = [
     ("camera", True, 1, 2),
     ("timestamp_ns", True, 0, None),
     ("gain_db", False, GAIN_DB_MIN, GAIN_DB_MAX),
-    ("exposure_us", False, EXPOSURE_US_MIN, EXPOSURE_US_MAX),
+    ("exposure_us", False, SENSOR_EXPOSURE_US_MIN, EXPOSURE_US_MAX),  # a camera may go below the network's 75 µs
 ]
 
 
