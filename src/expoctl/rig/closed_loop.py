@@ -7,6 +7,11 @@ Order of events at frame t (one frame of actuation latency, DESIGN "decisions th
      data-collection protocol) or what camera 2's own controller returns (two controllers side by side).
 So nothing computed from frame t can change frame t itself — the loop enforces it, controllers cannot break it.
 
+The loop itself (`drive_rig`) knows nothing of where frames come from: a `Rig` captures one frame per camera with
+the settings it is given and reports the settings each frame was actually exposed with. The simulator's rig
+(`SimRig`: scene + sensors) reports exactly what it was given; a real camera rig (`expoctl.cameras.live.LiveRig`)
+reports what the camera's metadata says, which may lag the command. Controllers always see the reported settings.
+
 Randomness: sensor noise for (camera c, frame t) comes from a generator seeded by (seed, c, t), so a frame's
 noise does not depend on how many frames ran before it (warm-up length, process) and reruns are bit-identical.
 """
@@ -45,8 +50,9 @@ class SensorLike(Protocol):
 @dataclass(frozen=True)
 class CameraFrame:
     camera: int
-    settings: Settings
+    settings: Settings  # what the frame was exposed with (simulator: the command; real camera: its metadata)
     image: np.ndarray  # H×W×3 uint8 RGB
+    timestamp_ns: int | None = None  # this camera's own capture time, when it differs from the rig frame's
 
 
 @dataclass(frozen=True)
@@ -64,6 +70,26 @@ def sensor_rng(seed: int, camera: int, frame_index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), _SENSOR_STREAM, int(camera), int(frame_index)]))
 
 
+class Rig(Protocol):
+    """What `drive_rig` drives: cameras 1 (and 2) that capture one frame each per frame index."""
+
+    def capture(self, frame_index: int, settings: Sequence[Settings]) -> RigFrame:
+        """Capture `frame_index` on cameras 1..len(settings), camera c with settings[c − 1]; the RigFrame's camera
+        frames carry the settings each image was actually exposed with."""
+
+
+class SimRig:
+    """The simulated rig: a scene seen through one or two sensors, with per-(camera, frame) noise seeds."""
+
+    def __init__(self, scene: Scene, sensors: Sequence[SensorLike], seed: int):
+        self.scene, self.sensors, self.seed = scene, list(sensors), int(seed)
+
+    def capture(self, frame_index: int, settings: Sequence[Settings]) -> RigFrame:
+        cams = tuple(CameraFrame(c, s, _capture(self.scene, self.sensors[c - 1], c, frame_index, s, self.seed))
+                     for c, s in enumerate(settings, start=1))
+        return RigFrame(frame_index, int(self.scene.timestamp_ns(frame_index)), cams)
+
+
 def run_closed_loop(
     scene: Scene,
     sensors: Sequence[SensorLike],
@@ -77,52 +103,78 @@ def run_closed_loop(
     camera2_initial: Settings | None = None,
     warmup_frames: int = 0,
 ) -> Iterator[RigFrame]:
-    """Drive the rig over `frames` (frame indices of the scene, step 1) and yield one `RigFrame` per frame.
+    """Drive the simulated rig over `frames` (frame indices of the scene, step 1) and yield one `RigFrame` per frame.
 
     One sensor: camera 1 only (evaluation). Two sensors: camera 2 follows camera 1 through `perturbation`
     (data collection) or runs `camera2_controller` (side-by-side comparison) — exactly one of the two.
     `warmup_frames` frames before `frames.start` (as many as exist) run camera 1's controller without being
     yielded, so the reference controller has settled like a rig that was already running.
     """
-    if frames.step != 1:
-        raise ValueError(f"frames must be consecutive (step 1), got {frames}")
     if len(sensors) not in (1, 2):
         raise ValueError(f"the rig has one or two cameras, got {len(sensors)} sensors")
-    two = len(sensors) == 2
+    return drive_rig(SimRig(scene, sensors, seed), len(sensors), controller, initial, frames, seed,
+                     perturbation=perturbation, camera2_controller=camera2_controller,
+                     camera2_initial=camera2_initial, warmup_frames=warmup_frames)
+
+
+def drive_rig(
+    rig: Rig,
+    n_cameras: int,
+    controller: Controller,
+    initial: Settings,
+    frames: range,
+    seed: int,
+    *,
+    perturbation: PerturbationConfig | None = None,
+    camera2_controller: Controller | None = None,
+    camera2_initial: Settings | None = None,
+    warmup_frames: int = 0,
+    limit: Callable[[int, Settings], Settings] | None = None,
+) -> Iterator[RigFrame]:
+    """The closed loop over any `Rig` (simulated or real) — the one copy of the order of events in the module doc.
+
+    `limit(camera, settings)` further restricts commands to a camera's own range (a real camera's limits); the
+    library's ranges always apply. Camera 2's perturbation is computed from camera 1's (limited) command, as in the
+    simulator, and then limited to camera 2's own range.
+    """
+    if frames.step != 1:
+        raise ValueError(f"frames must be consecutive (step 1), got {frames}")
+    if n_cameras not in (1, 2):
+        raise ValueError(f"the rig has one or two cameras, got {n_cameras}")
+    two = n_cameras == 2
     if two and (perturbation is None) == (camera2_controller is None):
         raise ValueError("with two cameras give exactly one of `perturbation` or `camera2_controller`")
     if not two and (perturbation is not None or camera2_controller is not None):
-        raise ValueError("camera-2 options given but only one sensor")
+        raise ValueError("camera-2 options given but only one camera")
+    lim = limit or (lambda _camera, s: s)
 
     first = max(0, frames.start - max(0, int(warmup_frames)))
-    settings1 = initial.clamped()
+    settings1 = lim(1, initial.clamped())
     controller.reset(settings1)
     for t in range(first, frames.start):  # warm-up: camera 1 only, nothing recorded
-        image = _capture(scene, sensors[0], 1, t, settings1, seed)
-        settings1 = _next_settings(controller, image, settings1, t)
+        cam1 = rig.capture(t, (settings1,)).camera(1)
+        settings1 = lim(1, _next_settings(controller, cam1.image, cam1.settings, t))
 
     settings2: Settings | None = None
     if two:
         if camera2_controller is not None:
-            settings2 = (camera2_initial or settings1).clamped()
+            settings2 = lim(2, (camera2_initial or settings1).clamped())
             camera2_controller.reset(settings2)
         else:
-            settings2 = perturb(settings1, frames.start, seed, perturbation)
+            settings2 = lim(2, perturb(settings1, frames.start, seed, perturbation))
 
     for t in frames:
-        image1 = _capture(scene, sensors[0], 1, t, settings1, seed)
-        cams = [CameraFrame(1, settings1, image1)]
+        frame = rig.capture(t, (settings1, settings2) if two else (settings1,))
+        yield frame
+        # settings computed from frame t take effect at t+1; controllers see what each frame was exposed with
+        cam1 = frame.camera(1)
+        settings1 = lim(1, _next_settings(controller, cam1.image, cam1.settings, t))
         if two:
-            image2 = _capture(scene, sensors[1], 2, t, settings2, seed)
-            cams.append(CameraFrame(2, settings2, image2))
-        yield RigFrame(t, int(scene.timestamp_ns(t)), tuple(cams))
-        # settings computed from frame t take effect at t+1
-        settings1 = _next_settings(controller, image1, settings1, t)
-        if two:
+            cam2 = frame.camera(2)
             if camera2_controller is not None:
-                settings2 = _next_settings(camera2_controller, image2, settings2, t)
+                settings2 = lim(2, _next_settings(camera2_controller, cam2.image, cam2.settings, t))
             else:
-                settings2 = perturb(settings1, t + 1, seed, perturbation)
+                settings2 = lim(2, perturb(settings1, t + 1, seed, perturbation))
 
 
 def _capture(scene: Scene, sensor: SensorLike, camera: int, t: int, settings: Settings, seed: int) -> np.ndarray:
