@@ -114,7 +114,7 @@ def test_out_of_range_commands_are_clamped_and_nan_is_refused():
     it = run_closed_loop(frame_scene(), [EncodingSensor()], ctrl, Settings(0, 500), range(10), seed=0)
     frames = [next(it), next(it), next(it)]
     assert frames[1].camera(1).settings == Settings(30.0, 30000.0)
-    assert frames[2].camera(1).settings == Settings(0.0, 75.0)
+    assert frames[2].camera(1).settings == Settings(0.0, 19.0)  # the camera's own floor
     with pytest.raises(ValueError, match="non-finite"):
         next(it)
 

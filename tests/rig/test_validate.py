@@ -78,7 +78,7 @@ def test_missing_column(seq):
     ("gain_db", "nan", "not a number"),
     ("gain_db", "31", "outside the valid range"),
     ("gain_db", "-0.5", "outside the valid range"),
-    ("exposure_us", "50", "outside the valid range"),
+    ("exposure_us", "10", "outside the valid range"),
     ("exposure_us", "30001", "outside the valid range"),
     ("exposure_us", "inf", "not finite"),
     ("camera", "3", "outside the valid range"),

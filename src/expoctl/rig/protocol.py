@@ -12,7 +12,7 @@ Our choices where the paper is silent (documented so a reader can check them):
   which biased camera 2 to be ~1 EV brighter — we keep it smaller.
 - In gain-*down* quadrants a near-zero gain cannot go lower; it stays at camera 1's gain, so the quadrant pattern
   survives (set `zero_gain_add_in_down_quadrants: true` to add the random gain in every quadrant, as the authors did).
-- Results are clamped to the camera ranges (0–30 dB, 75–30000 µs).
+- Results are clamped to the camera ranges (0–30 dB, 19–30000 µs: the camera's own exposure floor).
 - Randomness comes from a generator seeded per (sequence seed, frame index), so any frame's perturbation can be
   reproduced on its own, independent of how many frames came before or which process rendered it.
 
@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN
+from expoctl.camera.ranges import EXPOSURE_US_MAX, SENSOR_EXPOSURE_US_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
 
@@ -134,7 +134,7 @@ def excursion_offset_ev(frame_index: int, seed: int, cfg: PerturbationConfig) ->
 
 def _scale_product(reference: Settings, offset_ev: float) -> Settings:
     """reference's exposure product × 2^offset_ev: exposure time first, keeping the gain while it has range."""
-    exposure_us = float(np.clip(reference.exposure_us * 2.0 ** offset_ev, EXPOSURE_US_MIN, EXPOSURE_US_MAX))
+    exposure_us = float(np.clip(reference.exposure_us * 2.0 ** offset_ev, SENSOR_EXPOSURE_US_MIN, EXPOSURE_US_MAX))
     left_ev = offset_ev - float(np.log2(exposure_us / reference.exposure_us))  # what the exposure range could not take
     gain_db = reference.gain_db + left_ev * 20.0 * float(np.log10(2.0))
     return Settings(gain_db, exposure_us).clamped()
