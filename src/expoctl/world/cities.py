@@ -74,7 +74,13 @@ _TRAIN: dict[str, Any] = {
         "sun_azimuth_deg": [0.0, 360.0],
         "sun_illuminance_lux": [75000.0, 92000.0],  # normal-incidence direct sun
         "overcast_probability": 0.2,  # then no direct sun
-        "sky_zenith_cd_m2": [9000.0, 12000.0],  # CIE overcast distribution L(θ) = Lz(1 + 2cosθ)/3
+        "sky_zenith_cd_m2": [9000.0, 12000.0],  # overcast traversals: CIE overcast L(θ) = Lz(1 + 2cosθ)/3
+        # clear traversals: CIE general sky type 12 (clear, low turbidity) | cie_13 (polluted) | overcast_profile
+        # (the overcast distribution at sky_zenith_cd_m2 under the sun: runs before issue 23)
+        "clear_sky": "cie_12",
+        # level of a clear sky: mean near-horizon (0–10°) luminance per 100 klux of global horizontal illuminance;
+        # middle of the measured 8 (away from the sun) … 16 (toward it) kcd/m² (van Bommel 2015, Table 20.1; CIE 88)
+        "clear_sky_horizon_cd_m2_per_100klux": 12000.0,
         "vibration_deg": 0.25,
         "camera_height_m": 1.45,
         "dynamic_before_s": 2.5,  # a frame is dynamic within this window around a portal crossing
@@ -146,6 +152,8 @@ _TEST: dict[str, Any] = {
         "sun_illuminance_lux": [60000.0, 95000.0],
         "overcast_probability": 0.25,
         "sky_zenith_cd_m2": [8000.0, 13000.0],
+        "clear_sky": "cie_12",
+        "clear_sky_horizon_cd_m2_per_100klux": 12000.0,
         "vibration_deg": 0.35,
         "camera_height_m": 1.5,
         "dynamic_before_s": 2.5,
@@ -170,6 +178,7 @@ CITY_NAMES = ("train", "validation", "test", "stress")
 MATERIALS = ("road", "sidewalk", "verge", "facade_a", "facade_b", "wall", "hedge", "tunnel_wall", "tunnel_ceiling",
              "portal", "hill", "roof", "pole", "sign")
 ROADSIDE_KINDS = ("facade_a", "facade_b", "wall", "hedge", "none")
+CLEAR_SKIES = ("cie_12", "cie_13", "overcast_profile")  # traversal.clear_sky (expoctl.world.clear_sky)
 
 
 def deep_merge(base: dict, override: dict) -> dict:
@@ -411,6 +420,12 @@ def validate_city(cfg: dict) -> None:
     _range(cfg, "traversal.sun_illuminance_lux", lo=0.0, hi=150000.0)
     _num(cfg, "traversal.overcast_probability", lo=0.0, hi=1.0)
     _range(cfg, "traversal.sky_zenith_cd_m2", lo=0.0)
+    if _get(cfg, "traversal.clear_sky") not in CLEAR_SKIES:
+        raise ConfigError("world.city.traversal.clear_sky",
+                          f"must be one of {', '.join(CLEAR_SKIES)}, got {_get(cfg, 'traversal.clear_sky')!r}")
+    # measured clear skies: a few to ~20 kcd/m² near the horizon per 100 klux; far beyond, no clear sky of the CIE
+    # types can have that horizon (clear_sky.clear_sky_zenith_cd_m2 has no solution)
+    _num(cfg, "traversal.clear_sky_horizon_cd_m2_per_100klux", lo=1000.0, hi=30000.0)
     _num(cfg, "traversal.vibration_deg", lo=0.0, hi=5.0)
     _num(cfg, "traversal.camera_height_m", lo=0.2, hi=4.0)
     _num(cfg, "traversal.dynamic_before_s", lo=0.0)

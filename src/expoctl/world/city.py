@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from expoctl.errors import ConfigError
+from expoctl.world import clear_sky
 from expoctl.world.cities import city_config
 from expoctl.world.route import Route, build_segments
 
@@ -30,14 +31,22 @@ class Conditions:
 
     sun_direction: np.ndarray  # unit vector toward the sun, world frame
     sun_illuminance_lux: float  # normal-incidence direct sun (0 when overcast)
-    sky_zenith_cd_m2: float  # CIE overcast zenith luminance
+    sky_zenith_cd_m2: float  # zenith luminance Lz of the sky distribution `sky`
     overcast: bool
     hdri: dict | None = None  # {path, median_cd_m2, azimuth_deg} or None
+    # luminance distribution of the sky (clear_sky.SKIES): 'cie_overcast' L = Lz(1 + 2cos Z)/3, or a CIE general
+    # clear sky 'cie_12' / 'cie_13' (ISO 15469) around the sun
+    sky: str = clear_sky.OVERCAST
 
     @property
     def sky_illuminance_lux(self) -> float:
-        """Horizontal illuminance from a CIE overcast sky: E = (7π/9)·Lz."""
-        return 7.0 * math.pi / 9.0 * self.sky_zenith_cd_m2
+        """Horizontal illuminance from the sky distribution (not the sun): its cosine-weighted integral over the
+        hemisphere, E = Lz·∫ L/Lz cos Z dω — (7π/9)·Lz for the overcast sky, a quadrature for the clear ones, so the
+        sky the camera sees and the sky that lights the scene agree."""
+        if self.sky == clear_sky.OVERCAST:
+            return 7.0 * math.pi / 9.0 * self.sky_zenith_cd_m2
+        zs = math.acos(max(-1.0, min(1.0, float(self.sun_direction[2]))))
+        return clear_sky.illuminance_factor(self.sky, zs) * self.sky_zenith_cd_m2
 
     @property
     def global_illuminance_lux(self) -> float:
@@ -169,7 +178,12 @@ class City:
         lz = float(rng.uniform(*tr["sky_zenith_cd_m2"]))
         # azimuth clockwise from north (compass), world x east / y north
         sun = np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
-        return Conditions(sun, e_sun, lz, overcast, tr.get("hdri"))
+        sky = clear_sky.OVERCAST
+        # a clear sky needs the sun up; 'overcast_profile' keeps the old overcast distribution under the sun
+        if not overcast and sun[2] > 0.0 and tr["clear_sky"] != "overcast_profile":
+            sky = tr["clear_sky"]
+            lz = clear_sky.clear_sky_zenith_cd_m2(sky, sun, e_sun, float(tr["clear_sky_horizon_cd_m2_per_100klux"]))
+        return Conditions(sun, e_sun, lz, overcast, tr.get("hdri"), sky)
 
     def traversal(self, index: int, n_frames: int | None = None, fps: float = 15.0, seed: int = 0) -> Trajectory:
         """Traversal `index` of this city's route at `fps` frames/s.

@@ -5,7 +5,8 @@ Shading is Lambertian: L = albedo · E / π per RGB channel (cd/m²; E in lux), 
 - inside a tunnel: the lamps as flat Lambertian panels (I = L_lamp·A·cos θ, inverse-square, cosine at the surface),
   a daylight tail frac·E_global·exp(−3x/tail_m) from each portal (x = depth into the tunnel; 5 % left at tail_m),
   an interreflection ambient, and direct sun where the shadow ray leaves through a portal.
-Emitters: lamp panels (box-filtered coverage, so sub-pixel lamps do not flicker), sky (CIE overcast or HDRI), sun disk.
+Emitters: lamp panels (box-filtered coverage, so sub-pixel lamps do not flicker), sky (CIE overcast, CIE general
+clear sky or HDRI), sun disk.
 Textures are sampled trilinearly from mip pyramids at the level of the projected pixel footprint.
 
 Speed (all bit-identical to the straightforward code): the small per-ray helpers are inlined into their callers
@@ -42,7 +43,10 @@ LP_TAIL_M, LP_TAIL_FRAC, LP_INTERREFL, LP_E_LAMP_NOM = 23, 24, 25, 26
 LP_ROAD_HALF, LP_LANE_W, LP_LANES, LP_SIDEWALK = 27, 28, 29, 30
 LP_TEXEL_M, LP_TILE_PX, LP_MIP_BIAS, LP_TMAX, LP_ZTOP = 31, 32, 33, 34, 35
 LP_HDRI, LP_HDRI_AZ, LP_HDRI_SCALE = 36, 37, 38
-LP_N = 39
+# analytic sky: LP_SKY_KIND 0 = CIE overcast, 1 = CIE general sky with parameters a, b, c, d, e at LP_SKY_ABCDE and
+# LP_SKY_NORM = 1 / (f(Zs)·φ(0)) (expoctl.world.clear_sky)
+LP_SKY_KIND, LP_SKY_ABCDE, LP_SKY_NORM = 39, 40, 45
+LP_N = 46
 
 MAT_ROAD, MAT_SIDEWALK, MAT_VERGE = 0, 1, 2
 MAT_TWALL, MAT_TCEIL, MAT_PORTAL, MAT_HILL, MAT_ROOF = 7, 8, 9, 10, 11

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 from expoctl.errors import ConfigError
+from expoctl.world import clear_sky
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world.city import SUN_DISK_SOLID_ANGLE_SR, City, Conditions, Trajectory
@@ -180,6 +181,11 @@ class Renderer:
         lp[rc.LP_SKY_RGB:rc.LP_SKY_RGB + 3] = _rgb_norm([0.97, 1.0, 1.06] if conditions.overcast else [0.78, 0.97, 1.4])
         lp[rc.LP_SUN_DISK_L] = conditions.sun_illuminance_lux / SUN_DISK_SOLID_ANGLE_SR
         lp[rc.LP_SUN_COS] = math.cos(math.radians(0.2665))
+        if conditions.sky in clear_sky.CIE_TYPES:
+            lp[rc.LP_SKY_KIND] = 1.0
+            lp[rc.LP_SKY_ABCDE:rc.LP_SKY_ABCDE + 5] = clear_sky.CIE_TYPES[conditions.sky]
+            zs = math.acos(max(-1.0, min(1.0, float(conditions.sun_direction[2]))))
+            lp[rc.LP_SKY_NORM] = clear_sky.normaliser(conditions.sky, zs)
         self.hdri = np.zeros((1, 1, 3), np.float32)
         if conditions.hdri is not None:
             img, scale, e_sky = hdri_for(conditions.hdri)

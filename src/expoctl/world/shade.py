@@ -9,6 +9,7 @@ from numba import njit, prange
 
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
+from expoctl.world.clear_sky import general_sky_inline
 
 MAT_SKY, MAT_LAMP = 255, 254
 
@@ -33,11 +34,17 @@ def _sky(lp, hdri, dx, dy, dz, out):
                 hdri[y1, xa, c] * (1 - ax) + hdri[y1, xb, c] * ax) * ay
             out[c] = k * v
         return
-    # CIE standard overcast sky: L(θ) = Lz (1 + 2 cos θ) / 3 (θ from zenith); below the horizon use the horizon value
-    lum = lp[rc.LP_LZ] * (1.0 + 2.0 * max(dz, 0.0)) / 3.0
+    cs = dx * lp[0] + dy * lp[1] + dz * lp[2]
+    if lp[rc.LP_SKY_KIND] > 0.5:
+        # CIE general (clear) sky around the sun; below the horizon the horizon value (clear_sky.general_sky_inline)
+        k = rc.LP_SKY_ABCDE
+        lum = lp[rc.LP_LZ] * general_sky_inline(lp[k], lp[k + 1], lp[k + 2], lp[k + 3], lp[k + 4], lp[rc.LP_SKY_NORM],
+                                                dz, cs)
+    else:
+        # CIE standard overcast sky: L(θ) = Lz (1 + 2 cos θ) / 3 (θ from zenith); below the horizon the horizon value
+        lum = lp[rc.LP_LZ] * (1.0 + 2.0 * max(dz, 0.0)) / 3.0
     for c in range(3):
         out[c] = lum * lp[rc.LP_SKY_RGB + c]
-    cs = dx * lp[0] + dy * lp[1] + dz * lp[2]
     if lp[rc.LP_E_SUN] > 0.0 and cs > lp[rc.LP_SUN_COS]:
         for c in range(3):
             out[c] += lp[rc.LP_SUN_DISK_L]

@@ -108,10 +108,23 @@ vec3 sky(vec3 d) {
                  + (texelFetch(hdri, ivec2(xa, y1), 0).rgb * (1.0 - ax) + texelFetch(hdri, ivec2(xb, y1), 0).rgb * ax) * ay;
         return LP(LP_HDRI_SCALE) * v;
     }
-    // CIE standard overcast sky; below the horizon the horizon value
-    float lum = LP(LP_LZ) * (1.0 + 2.0 * max(d.z, 0.0)) / 3.0;
-    vec3 out_ = lum * vec3(LP(LP_SKY_RGB), LP(LP_SKY_RGB + 1), LP(LP_SKY_RGB + 2));
     float cs = d.x * LP(0) + d.y * LP(1) + d.z * LP(2);
+    float lum;
+    if (LP(LP_SKY_KIND) > 0.5) {
+        // CIE general (clear) sky, L/Lz = f(χ)·φ(Z)/(f(Zs)·φ(0)) (clear_sky.general_sky_inline); below the horizon
+        // the horizon value (φ = 1)
+        float phi = 1.0;
+        if (d.z > 0.0) phi = 1.0 + LP(LP_SKY_ABCDE) * exp(LP(LP_SKY_ABCDE + 1) / d.z);
+        float cc = clamp(cs, -1.0, 1.0);
+        float chi = acos(cc);
+        float f = 1.0 + LP(LP_SKY_ABCDE + 2) * (exp(LP(LP_SKY_ABCDE + 3) * chi) - exp(LP(LP_SKY_ABCDE + 3) * 0.5 * PI))
+                  + LP(LP_SKY_ABCDE + 4) * cc * cc;
+        lum = LP(LP_LZ) * f * phi * LP(LP_SKY_NORM);
+    } else {
+        // CIE standard overcast sky; below the horizon the horizon value
+        lum = LP(LP_LZ) * (1.0 + 2.0 * max(d.z, 0.0)) / 3.0;
+    }
+    vec3 out_ = lum * vec3(LP(LP_SKY_RGB), LP(LP_SKY_RGB + 1), LP(LP_SKY_RGB + 2));
     if (LP(LP_E_SUN) > 0.0 && cs > LP(LP_SUN_COS)) out_ += LP(LP_SUN_DISK_L);
     return out_;
 }
