@@ -120,6 +120,9 @@ def ingest(raw_dir: str | os.PathLike | list, frames_path: str | os.PathLike, im
     problems = [p for c in checks for p in c.problems]
     names: dict[str, Path] = {}
     for c in checks:
+        if c.n_cameras != 2:  # `expoctl drive` output: valid, but training pairs two cameras per time step
+            problems.append(f"{c.seq_dir}: a one-camera sequence (sequence.yaml cameras: 1, from expoctl drive); "
+                            "training needs two cameras — record them with expoctl record")
         if c.seq_dir.name in names:
             problems.append(f"{c.seq_dir}: sequence name '{c.seq_dir.name}' also used by {names[c.seq_dir.name]}")
         names.setdefault(c.seq_dir.name, c.seq_dir)

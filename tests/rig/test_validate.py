@@ -152,3 +152,53 @@ def test_cli_exit_codes_and_output(seq):
     _set_cell(seq, 3, "gain_db", "nan")
     bad = subprocess.run(exe + [str(seq.parent.parent)], capture_output=True, text=True)
     assert bad.returncode == 1 and "line 3, column 'gain_db'" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_three_problems_in_one_pass_and_no_opencv_warnings(seq):
+    """A bad value on one row must not hide a corrupt PNG or a missing camera-2 partner elsewhere (issue 24 §6)."""
+    _set_cell(seq, 2, "gain_db", "abc")  # frame 0 camera 1
+    (seq / "cam2" / "000002.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 10)  # frame 2 camera 2, line 7
+    _edit_csv(seq, lambda lines: [l for i, l in enumerate(lines) if i != 8])  # drop frame 3 camera 2
+    problems = check_sequence(seq).problems
+    assert len(problems) == 3, problems
+    assert "line 2, column 'gain_db': not a number" in problems[0]
+    assert any("line 7, column 'image'" in p and "000002.png" in p and "corrupt" in p for p in problems), problems
+    assert any("frame_id 3 has camera 1 but no camera 2 partner" in p for p in problems), problems
+    # through the CLI: every problem on stderr, nothing from OpenCV itself, no traceback
+    exe = [sys.executable, "-m", "expoctl.cli", "validate", str(seq)]
+    res = subprocess.run(exe, capture_output=True, text=True)
+    assert res.returncode == 1
+    lines = [l for l in res.stderr.splitlines() if l.strip()]
+    assert lines[:3] == problems and "1 of 1 sequence(s) have problems" in lines[3], lines
+    assert len(lines) == 4 and "WARN" not in res.stderr and "libpng" not in res.stderr, res.stderr
+
+
+def _one_camera(seq: Path) -> None:
+    meta = yaml.safe_load((seq / "sequence.yaml").read_text())
+    meta["cameras"] = 1
+    del meta["rig"]["baseline_m"]
+    (seq / "sequence.yaml").write_text(yaml.safe_dump(meta))
+    _edit_csv(seq, lambda lines: [l for i, l in enumerate(lines) if i == 0 or l.split(",")[1] == "1"])
+
+
+def test_one_camera_sequence_is_valid_when_declared(seq):
+    _one_camera(seq)
+    check = check_sequence(seq)
+    assert check.ok and check.n_cameras == 1 and check.n_frames == 4, check.problems
+    meta = yaml.safe_load((seq / "sequence.yaml").read_text())
+    del meta["cameras"]  # undeclared: a dual-camera sequence whose camera 2 is missing everywhere
+    (seq / "sequence.yaml").write_text(yaml.safe_dump(meta))
+    problems = check_sequence(seq).problems
+    assert any("'rig.baseline_m'" in p for p in problems)
+    assert sum("no camera 2 partner" in p for p in problems) == 4, problems
+
+
+def test_one_camera_sequence_rejects_camera_2_rows_and_bad_count(seq):
+    _one_camera(seq)
+    _edit_csv(seq, lambda lines: lines + [lines[1].replace(",1,", ",2,", 1).replace("cam1/", "cam2/")])
+    (problem,) = check_sequence(seq).problems
+    assert "line 6, column 'camera': 2 outside the valid range 1–1 (sequence.yaml says cameras: 1)" in problem
+    meta = yaml.safe_load((seq / "sequence.yaml").read_text())
+    meta["cameras"] = 3
+    (seq / "sequence.yaml").write_text(yaml.safe_dump(meta))
+    assert any("key 'cameras' must be 1" in p for p in check_sequence(seq).problems)
