@@ -3,6 +3,8 @@
   expoctl validate RAW_DIR                       check raw dual-camera sequences, one line per problem
   expoctl match --frontend orb|viso PREV CUR     feature and inlier counts of one image pair, one JSON line
   expoctl preview ...                            render a route under a controller to a contact sheet / video
+  expoctl drive --camera ID --controller NAME ...  drive a real camera in closed loop, record it, print timing
+  expoctl record --camera1 ID --camera2 ID ...   record dual-camera training data on two real cameras
 
 Each subcommand lives in a module exposing `add_arguments(parser)` and `run(args) -> int`.
 """
@@ -19,6 +21,8 @@ SUBCOMMANDS = {
     "validate": ("expoctl.rig.validate_cli", "check raw dual-camera sequences"),
     "match": ("expoctl.features.match_cli", "count features and inlier matches of one image pair"),
     "preview": ("expoctl.rig.preview", "render a route under a controller to a contact sheet"),
+    "drive": ("expoctl.cameras.drive_cli", "drive a real camera in closed loop with a controller"),
+    "record": ("expoctl.cameras.record_cli", "record dual-camera training data on two real cameras"),
 }
 
 
