@@ -315,6 +315,13 @@ class AravisCamera(Camera):
             self._stream.push_buffer(buf)
         return frame, discarded
 
+    def discard_queued(self) -> int:
+        n = 0
+        while self._stream is not None and (buf := self._stream.try_pop_buffer()) is not None:
+            self._stream.push_buffer(buf)
+            n += 1
+        return n
+
     def _frame_from(self, buf) -> Frame:
         try:
             image = to_rgb8(buf.get_data(), buf.get_image_width(), buf.get_image_height(), self.info.pixel_format)

@@ -185,6 +185,11 @@ class Camera(ABC):
         discarded. CameraError if none arrives within `timeout_s` (a camera that disappeared) or the camera is lost."""
 
     @abstractmethod
+    def discard_queued(self) -> int:
+        """Drop every frame already received but not yet grabbed (before a trigger: so the next frame grabbed is the
+        one that trigger exposed); returns how many were dropped."""
+
+    @abstractmethod
     def stop(self) -> None:
         """Stop streaming (idempotent)."""
 

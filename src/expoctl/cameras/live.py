@@ -108,12 +108,14 @@ class LiveRig:
         n = len(settings)
         for c in range(n):
             self._command(c, settings[c])
-        for attempt in range(self.max_mispaired_in_row):
+        for _attempt in range(self.max_mispaired_in_row):
             frames = self._grab(n)
             if n == 1 or abs(frames[0].timestamp_ns - frames[1].timestamp_ns) <= self.pair_tolerance_ns:
                 break
             self.stats.mispaired += 1
             offset_ms = (frames[0].timestamp_ns - frames[1].timestamp_ns) / 1e6
+            for c, f in enumerate(frames):  # discarded, but received: not a transport loss
+                self._account(c, f)
         else:
             raise CameraError(
                 f"cameras {self.cameras[0].camera_id} and {self.cameras[1].camera_id}: the two frames of one trigger "
@@ -143,6 +145,8 @@ class LiveRig:
 
     def _grab(self, n: int) -> list[Frame]:
         if self.triggered:
+            for c, cam in enumerate(self.cameras[:n]):
+                self.stats.discarded_stale[c] += cam.discard_queued()  # a late frame of an earlier trigger
             for cam in self.cameras[:n]:
                 cam.trigger()
         frames = []

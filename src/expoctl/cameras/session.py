@@ -142,6 +142,8 @@ def _finish(writer: SequenceWriter, out: Path, written: int, stopped: str, error
         return None
     writer.meta["stopped"] = stopped if error is None else f"camera failed: {error}"
     path = writer.close()
+    if writer.meta.get("cameras") == 1 and (path / "cam2").is_dir() and not any((path / "cam2").iterdir()):
+        (path / "cam2").rmdir()  # the writer prepares both camera folders; a one-camera recording has one
     if error is not None:
         raise CameraError(f"{error} The {written} frame(s) recorded before it are saved in {path} "
                           "(a complete sequence: expoctl validate accepts it).")
