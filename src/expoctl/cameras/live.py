@@ -90,6 +90,7 @@ class LiveRig:
         self.delay = [ActuationDelay() for _ in cameras]
         self.last_delay: list[int | None] = [None] * n  # delay resolved by the latest frame, per camera
         self._accepted: list[Settings | None] = [None] * n  # what each device holds (last write, read back)
+        self._wanted: list[Settings | None] = [None] * n  # what each device was last asked for
         self._last_frame_no: list[int | None] = [None] * n
 
     def start(self) -> None:
@@ -133,10 +134,11 @@ class LiveRig:
     # --- internals ---------------------------------------------------------------------------------------------------
 
     def _command(self, c: int, wanted: Settings) -> None:
-        previous = self._accepted[c]
-        if previous is not None and same_settings(wanted, previous):
+        if wanted == self._wanted[c]:  # exactly what the device was last asked for: skip the round trip
             return
+        previous = self._accepted[c]
         accepted = self.cameras[c].apply(wanted)
+        self._wanted[c] = wanted
         # the command was computed from the camera's latest frame (before the first frame: from "frame −1")
         from_frame = self._last_frame_no[c] if self._last_frame_no[c] is not None else -1
         if self._last_frame_no[c] is not None:
