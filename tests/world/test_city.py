@@ -53,7 +53,22 @@ def test_sections_mark_portal_crossings(city):
     before, after = city.cfg["traversal"]["dynamic_before_s"], city.cfg["traversal"]["dynamic_after_s"]
     t = frames / traj.fps
     far = np.all([(t < tc - before - 0.1) | (t > tc + after + 0.1) for tc, _, _ in traj.portal_times_s], axis=0)
-    assert set(traj.frame_section[far]) <= {"static"}
+    assert set(traj.frame_section[far]) <= {"static", "interior"}
+
+
+def test_static_sections_are_unobstructed_road_only(city):
+    """As in the paper, static sections lie on open road: frames inside a tunnel, away from its portals, are
+    'interior'. Checked against the arc length of every frame of a whole lap."""
+    traj = city.traversal(0, None, fps=5.0, seed=1)
+    s = traj.s_at(np.arange(len(traj.poses)) / traj.fps)
+    inside = np.zeros(len(s), bool)
+    for a, b in city.tunnel_spans():
+        inside |= (s >= a) & (s < b)
+    kinds = np.asarray(traj.frame_section)
+    assert not np.any(inside & (kinds == "static"))
+    assert np.all(kinds[inside & (kinds != "dynamic")] == "interior")
+    assert np.all(kinds[~inside & (kinds != "dynamic")] == "static")
+    assert (kinds == "interior").any()  # the train city's 80 m tunnels are longer than the two portal windows
 
 
 def test_full_route_traversal_crosses_every_portal(city):
@@ -61,4 +76,4 @@ def test_full_route_traversal_crosses_every_portal(city):
     n_portals = 2 * len(city.cfg["tunnels"])
     assert len(traj.portal_times_s) == n_portals
     assert len(traj.poses) * traj.speed_mps / traj.fps == pytest.approx(city.length_m, abs=traj.speed_mps / traj.fps)
-    assert {s["kind"] for s in traj.sections} == {"static", "dynamic"}
+    assert {s["kind"] for s in traj.sections} == {"static", "dynamic", "interior"}

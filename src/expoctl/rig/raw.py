@@ -31,7 +31,7 @@ from expoctl.errors import InputError
 FRAMES_CSV = "frames.csv"
 SEQUENCE_YAML = "sequence.yaml"
 FRAMES_COLUMNS = ["frame_id", "camera", "timestamp_ns", "gain_db", "exposure_us", "image"]
-SECTION_KINDS = ("static", "dynamic")
+SECTION_KINDS = ("static", "dynamic", "interior")  # interior: inside a tunnel, away from its portals
 SOURCES = ("sim", "rig")
 
 

@@ -234,16 +234,23 @@ class City:
                         traj.portal_times_s.append((float(tc), ti, kind))
                     dynamic |= (times >= tc - before) & (times <= tc + after)
         traj.portal_times_s.sort()
-        traj.frame_section = np.where(dynamic, "dynamic", "static").astype(object)
-        traj.sections = _runs(dynamic)
+        # the paper's static sections are unobstructed road: frames inside a tunnel that are not near a portal are
+        # their own kind ("interior"), counted in neither the static nor the dynamic statistics
+        inside = np.zeros(n, bool)
+        for a, b in self.tunnel_spans():
+            inside |= ((s_all - a) % self.length_m) < (b - a)
+        kinds = np.where(dynamic, "dynamic", np.where(inside, "interior", "static")).astype(object)
+        traj.frame_section = kinds
+        traj.sections = _runs(kinds)
         return traj
 
 
-def _runs(dynamic: np.ndarray) -> list:
+def _runs(kinds: np.ndarray) -> list:
+    """Maximal runs of equal section kind as [{start_frame, end_frame (inclusive), kind}]."""
     out, start = [], 0
-    for k in range(1, len(dynamic) + 1):
-        if k == len(dynamic) or dynamic[k] != dynamic[start]:
-            out.append({"start_frame": start, "end_frame": k - 1, "kind": "dynamic" if dynamic[start] else "static"})
+    for k in range(1, len(kinds) + 1):
+        if k == len(kinds) or kinds[k] != kinds[start]:
+            out.append({"start_frame": start, "end_frame": k - 1, "kind": str(kinds[start])})
             start = k
     return out
 
