@@ -96,6 +96,7 @@ class AravisCamera(Camera):
         self._GLib = GLib
         self._stream = None
         self._cam = None
+        self._lost = False  # set once the device stopped answering: no more round trips to it (each would time out)
         device_id = resolve_camera_id(camera_id)
         self._name = camera_id
         self._n_buffers = int(n_buffers)
@@ -244,6 +245,7 @@ class AravisCamera(Camera):
                 self._dev.set_integer_feature_value("GainRaw", int(round(settings.gain_db / f["gain_db_per_raw"])))
             return self._read_settings()
         except self._GLib.Error as exc:
+            self._lost = True
             raise CameraError(f"camera {self._name}: setting gain/exposure failed ({exc.message}); "
                               "the camera stopped answering (disconnected or powered off?)") from None
 
@@ -251,6 +253,7 @@ class AravisCamera(Camera):
         try:
             return self._read_settings()
         except self._GLib.Error as exc:
+            self._lost = True
             raise CameraError(f"camera {self._name}: reading gain/exposure failed ({exc.message}); "
                               "the camera stopped answering (disconnected or powered off?)") from None
 
@@ -287,6 +290,7 @@ class AravisCamera(Camera):
         try:
             self._cam.software_trigger()
         except self._GLib.Error as exc:
+            self._lost = True
             raise CameraError(f"camera {self._name}: software trigger failed ({exc.message}); "
                               "the camera stopped answering (disconnected or powered off?)") from None
 
@@ -300,6 +304,7 @@ class AravisCamera(Camera):
             left_us = int(max(0.0, deadline - time.monotonic()) * 1e6)
             buf = self._stream.timeout_pop_buffer(max(left_us, 1))
             if buf is None:
+                self._lost = True
                 raise CameraError(f"camera {self._name}: no frame arrived within {timeout_s:g} s; the camera stopped "
                                   "sending (disconnected, powered off, or its emulator was stopped?)")
             if newest:  # drop what queued up while we were busy: the controller acts on the latest image
@@ -334,6 +339,7 @@ class AravisCamera(Camera):
             else:
                 settings, source = self._read_settings(), "readback"
         except self._GLib.Error as exc:
+            self._lost = True
             raise CameraError(f"camera {self._name}: reading the frame's gain/exposure failed ({exc.message}); "
                               "the camera stopped answering (disconnected or powered off?)") from None
         return Frame(image=image, settings=settings, settings_source=source,
@@ -348,6 +354,8 @@ class AravisCamera(Camera):
     def stop(self) -> None:
         if self._cam is None or self._stream is None:
             return
+        if self._lost:
+            return  # nothing to tell a device that is gone; close() keeps the stream alive (its finalizer writes too)
         try:
             self._cam.stop_acquisition()
             if getattr(self, "_triggered", False):
@@ -360,7 +368,15 @@ class AravisCamera(Camera):
         try:
             self.stop()
         finally:
+            if self._lost and self._cam is not None:
+                # Releasing a GigE device writes to it (give up control); to a device that is gone each write
+                # times out after seconds. Keep the objects alive until the process ends instead.
+                _LOST_DEVICES.append((self._stream, self._cam, self._dev))
             self._stream = None
             self._cam = None
             self._dev = None
+
+
+#: devices that stopped answering, kept referenced so their finalizers do not block (AravisCamera.close)
+_LOST_DEVICES: list = []
 
