@@ -10,11 +10,17 @@ command -v "$PYTHON" >/dev/null 2>&1 || PYTHON=python3
 
 setup() {
   local stamp="$VENV/.expoctl-installed"
-  if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  # optional extras to install besides test (CI adds camera: EXPOCTL_EXTRAS=test,camera)
+  local extras="${EXPOCTL_EXTRAS:-test}"
+  local have e stale=0
+  have=",$(cat "$stamp" 2>/dev/null || true),"
+  [ "$have" != ",," ] || have=",test,"  # stamps from before extras were recorded
+  for e in ${extras//,/ }; do [[ "$have" == *",$e,"* ]] || stale=1; done
+  if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$stale" = 1 ]; then
     [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
     "$VENV/bin/python" -m pip install -q --upgrade pip
-    "$VENV/bin/python" -m pip install -q -e '.[test]'
-    touch "$stamp"
+    "$VENV/bin/python" -m pip install -q -e ".[$extras]"
+    echo "$extras" > "$stamp"
   fi
   export PATH="$PWD/$VENV/bin:$PATH"
 }
