@@ -26,8 +26,6 @@ import pytest
 
 EMULATOR = "arv-fake-gv-camera-0.8"
 ADDRESSES = ("127.0.0.1", "127.0.0.2")
-#: how the emulator's raw gain maps to dB for expoctl (see expoctl.cameras.aravis: 6 dB ≈ its brightness per step)
-GAIN_DB_PER_RAW = 6.0
 
 
 def _missing() -> str | None:
@@ -104,11 +102,6 @@ def emulators():
         emu.stop(0)
         emu.stop(1)
         subprocess.run(["ip", "netns", "delete", ns], check=False)
-
-
-def camera_args() -> list[str]:
-    """The options every emulator run uses: 640×480 and the emulator's gain scale."""
-    return ["--gain-db-per-raw", str(GAIN_DB_PER_RAW), "--width", "640", "--height", "480", "--timeout-s", "1.5"]
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,11 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import GAIN_DB_PER_RAW, camera_args
+from emulated import GAIN_DB_PER_RAW, camera_args
 
+from expoctl.controllers.base import Settings
 from expoctl.ingest import IngestConfig, ingest
 from expoctl.rig.protocol import PerturbationConfig, perturb
-from expoctl.controllers.base import Settings
 
 
 def _validate(path: Path) -> subprocess.CompletedProcess:
