@@ -10,8 +10,8 @@ tunnel passes of the configured cities (the same statistics, `expoctl.controller
 It does this for the configured AG+AE (settings land at t+2) and for one more frame of latency (t+3), and with
 `--old` also for the loop before the fit. No NFM or VO is computed: the fit is decided on these statistics alone.
 
-A simulated pass starts `--before-s` before a tunnel entry and ends `--after-s` after its exit, with 30 warm-up frames
-so that AG+AE has settled outdoors, like the recorded pass (which starts at the entry).
+A simulated pass starts `--before-s` before a tunnel entry and ends `--after-s` after its exit, with `--warmup` frames
+(default 90, 6 s) so that AG+AE has settled outdoors, like the recorded pass (which starts at the entry).
 
     .venv/bin/python benchmarks/agae_fit.py [--cities train validation] [--passes 4] [--width 320] [OVERRIDE ...]
 
@@ -45,6 +45,7 @@ from stages.compose import compose_config  # noqa: E402
 
 RECORDING = ROOT.parent / "shared" / "data" / "authors_settings" / "data_32.csv"
 RECORDED_EXIT_START = 60  # the recorded pass: entry at frame 0, exit at ~73–125 (README of the data)
+RECORDED_OUTDOOR_US = (1450.0, 2300.0)  # camera 1 outdoors at 0 dB before the entry and after the exit (data README)
 OLD_LOOP = {"damping": 0.2, "max_brighten_ev_per_frame": 0.5, "max_darken_ev_per_frame": 0.5}
 
 
@@ -85,7 +86,7 @@ def recorded(path: Path) -> dict:
     return s
 
 
-def tunnel_passes(city, n: int, fps: float, before_s: float, after_s: float):
+def tunnel_passes(city, n: int, fps: float, before_s: float, after_s: float, warmup: int):
     """Up to n (trajectory, first frame, last frame + 1, exit frame, entry frame) passes through the city's tunnels,
     one per traversal index (trying up to 4n indices), cycling over the tunnels; frames are relative to the pass."""
     spans = city.tunnel_spans()
@@ -103,24 +104,24 @@ def tunnel_passes(city, n: int, fps: float, before_s: float, after_s: float):
             continue
         a = int(math.floor((pair[0] - before_s) * fps))
         b = int(math.ceil((pair[1] + after_s) * fps))
-        if a < 30 or b > len(traj.timestamps_ns):
+        if a < warmup or b > len(traj.timestamps_ns):
             continue  # the pass is cut by the start or end of the lap: skip it rather than shorten it
         passes.append((traj, a, b, int(round(pair[1] * fps)) - a, int(round(pair[0] * fps)) - a))
     return passes
 
 
 def simulate(cfg: dict, split: str, agae_params: dict, n_passes: int, width: int, height: int,
-             before_s: float, after_s: float) -> list[dict]:
+             before_s: float, after_s: float, warmup: int) -> list[dict]:
     city = load_world_city(cfg["world"], split)
     rig = RigConfig.from_dict(cfg["rig"])
     render = RenderConfig.from_world(cfg["world"]).with_size(width, height)
     sensors, _ = make_sensors(cfg["sensor"], render, 1, 0.0, seed=0)
     out = []
-    for traj, a, b, exit_k, entry_k in tunnel_passes(city, n_passes, rig.fps, before_s, after_s):
+    for traj, a, b, exit_k, entry_k in tunnel_passes(city, n_passes, rig.fps, before_s, after_s, warmup):
         scene = RouteScene(city, traj, rig, render)
         ctrl = AgAeController(agae_params)
         frames = list(run_closed_loop(scene, sensors, ctrl, Settings(0.0, 2000.0), range(a, b), seed=traj.index,
-                                      warmup_frames=30))
+                                      warmup_frames=warmup))
         t = np.array([f.camera(1).settings.exposure_us for f in frames])
         g = np.array([f.camera(1).settings.gain_db for f in frames])
         sat = np.array([float((f.camera(1).image.max(axis=2) >= 250).mean()) for f in frames])
@@ -129,6 +130,7 @@ def simulate(cfg: dict, split: str, agae_params: dict, n_passes: int, width: int
         s = trace_summary(ev, (entry_k + exit_k) // 2, t, g, slice(0, max(1, entry_k - int(0.5 * rig.fps))),
                           slice(len(ev) - 15, len(ev)))
         s.update(traversal=traj.index, overcast=bool(traj.conditions.overcast), frames=int(len(ev)),
+                 sun_elevation_deg=float(np.degrees(np.arcsin(traj.conditions.sun_direction[2]))),
                  exit_frame=exit_k, entry_frame=entry_k,
                  frames_over_half_saturated_after_exit=int((sat[exit_k:] > 0.5).sum()),
                  global_illuminance_lux=float(traj.conditions.global_illuminance_lux))
@@ -170,6 +172,7 @@ def main() -> int:
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--before-s", type=float, default=3.0)
     ap.add_argument("--after-s", type=float, default=6.0)
+    ap.add_argument("--warmup", type=int, default=90, help="frames AG+AE runs before the pass (settles outdoors)")
     ap.add_argument("--old", action="store_true", help="also drive the loop before the fit")
     ap.add_argument("--recording", type=Path, default=RECORDING)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "agae_fit.json")
@@ -184,7 +187,7 @@ def main() -> int:
         if args.old:
             variants["old loop (damping 0.2, ±0.5 EV)"] = dict(base, **OLD_LOOP)
         sims = {name: {split: simulate(cfg, split, params, args.passes, args.width, args.height, args.before_s,
-                                       args.after_s) for split in args.cities}
+                                       args.after_s, args.warmup) for split in args.cities}
                 for name, params in variants.items()}
     except (ConfigError, InputError, ValueError) as exc:
         print(f"agae_fit: {exc}", file=sys.stderr)
@@ -218,7 +221,26 @@ def main() -> int:
                   f"mean rate {m['mean_rate_80_ev_per_frame']:.3f} ({r2:.2f}x)  onset {m['onset_frames']:.0f} "
                   f"(rec {rec['exit']['onset_frames']})  entry ratio {m['entry_shrink_ratio']:.3f}  "
                   f"outdoor {m['outdoor_exposure_us']:.0f} µs")
+    # sensitivity: AG+AE's outdoor exposure at 0 dB scales with the f-number squared (same scene, same target grey),
+    # so the aperture that puts the median pre-entry exposure at the recorded range's geometric centre is
+    # N·sqrt(t_rec / t_sim). Computed from the first variant, over every pass of every city driven.
+    first = next(iter(sims.values()))
+    outdoor = [r["outdoor_before"]["median_exposure_us"] for runs in first.values() for r in runs
+               if r.get("outdoor_before") and r["outdoor_before"]["median_gain_db"] < 0.05]
+    aperture = None
+    if outdoor:
+        t_rec = math.sqrt(RECORDED_OUTDOOR_US[0] * RECORDED_OUTDOOR_US[1])
+        t_sim = float(np.median(outdoor))
+        n_now = float(cfg["sensor"]["f_number"])
+        aperture = {"f_number_now": n_now, "median_outdoor_us": t_sim, "passes": len(outdoor),
+                    "outdoor_us_range": [float(min(outdoor)), float(max(outdoor))],
+                    "recorded_outdoor_us": list(RECORDED_OUTDOOR_US), "implied_f_number": n_now * math.sqrt(t_rec / t_sim)}
+        print(f"\nsensitivity: median outdoor exposure before the entry {t_sim:.0f} µs at 0 dB over {len(outdoor)} passes "
+              f"(range {min(outdoor):.0f}–{max(outdoor):.0f}) at f/{n_now:g}; the recorded "
+              f"{RECORDED_OUTDOOR_US[0]:.0f}–{RECORDED_OUTDOOR_US[1]:.0f} µs (centre {t_rec:.0f}) implies "
+              f"f/{aperture['implied_f_number']:.2f}")
     write_json({"overrides": list(args.overrides), "resolution": [args.width, args.height], "recorded": rec,
+                "aperture": aperture,
                 "variants": {k: {"params": variants[k], "passes": sims[k], "medians": summary[k]} for k in variants},
                 "seconds": round(time.time() - t0, 1), **run_metadata()}, args.out)
     print(f"wrote {args.out} ({time.time() - t0:.0f} s)")
