@@ -55,10 +55,13 @@ def run(args: argparse.Namespace) -> int:
     s = res.summary
     ms, delay = s["controller_ms"], s["actuation_delay_frames"]
     source = s["settings_source"]
+    if s["actuation_delays_measured"]:
+        lag = (f"actuation delay {delay['median']:g} camera frames median (max {delay['max']:g}) over "
+               f"{s['actuation_delays_measured']} setting changes, from {source}"
+               f"{' (register read-back: a lower bound, see expoctl.cameras.base)' if source == 'readback' else ''}")
+    else:
+        lag = "actuation delay not measured (no setting change large enough to see)"
     print(f"drive: {res.n_frames} frames ({res.stopped}), loop {s['loop_hz']} Hz; controller {ms['median']} ms median, "
-          f"{ms['p95']} ms p95; actuation delay {delay['median']} frames median (max {delay['max']}) over "
-          f"{s['actuation_delays_measured']} setting changes, from {source}"
-          f"{' (register read-back: a lower bound, see expoctl.cameras.base)' if source == 'readback' else ''}; "
-          f"camera frames dropped {s['dropped']}, skipped as stale {s['skipped_stale']}")
+          f"{ms['p95']} ms p95; {lag}; camera frames dropped {s['dropped']}, skipped as stale {s['skipped_stale']}")
     print(f"sequence written to {res.out_dir}" if res.out_dir else "no frames recorded; nothing written")
     return 0
