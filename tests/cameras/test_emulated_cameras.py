@@ -34,6 +34,23 @@ def _grey_means(seq: Path, frames: pd.DataFrame) -> np.ndarray:
     return np.array([cv2.imread(str(seq / p), cv2.IMREAD_GRAYSCALE).mean() for p in frames["image"]])
 
 
+def _emulator_mean(gain_db: float, exposure_us: float) -> float:
+    """Mean grey level the emulator's test pattern has at these settings, as measured on it: a diagonal ramp
+    (x + y) mod 255 scaled by 1 + raw gain + log10(exposure / 10 ms), clipped to 0–255 (fits within 1.5 levels: the
+    ramp also shifts by one level per frame, which this ignores)."""
+    scale = 1.0 + gain_db / GAIN_DB_PER_RAW + np.log10(exposure_us / 1e4)
+    ramp = (np.arange(640)[None, :] + np.arange(480)[:, None]) % 255
+    return float(np.clip(ramp * scale, 0, 255).astype(np.uint8).mean()) if scale > 0 else 0.0
+
+
+def _assert_images_match_settings(frames: pd.DataFrame, means: np.ndarray, share: float) -> None:
+    """The settings on each row are those the image was exposed with: the emulator's brightness at them matches the
+    image (for `share` of the rows; a command written while the camera is filling a frame may miss that frame)."""
+    pred = np.array([_emulator_mean(g, e) for g, e in zip(frames["gain_db"], frames["exposure_us"])])
+    ok = np.abs(pred - means) <= 3.0  # other settings differ by tens of levels (perturbation: up to ±50 %)
+    assert ok.mean() >= share, list(zip(pred.round(1), means.round(1)))
+
+
 def _assert_device_values(frames: pd.DataFrame) -> None:
     """The emulator holds whole microseconds and whole GainRaw steps: values read back from it are quantised that
     way, while the controllers command arbitrary floats — so these rows are what the camera reports, not commands."""
@@ -58,6 +75,7 @@ def test_drive_agae_converges_on_the_emulators_brightness(emulators, tmp_path):
     assert (frames["camera"] == 1).all() and len(frames) == 60
     _assert_device_values(frames)
     means = _grey_means(out, frames)
+    _assert_images_match_settings(frames, means, share=0.9)
     assert means[0] < 5.0  # 1 ms is black on the emulator
     last = means[-15:]
     assert 60.0 < last.mean() < 180.0 and np.ptp(last) < 3.0, means  # settled, neither dark nor clipped
@@ -109,6 +127,8 @@ def test_record_validates_ingests_and_follows_the_shared_protocol(emulators, tmp
         assert abs(c2.at[fid, "exposure_us"] - want.exposure_us) <= 2.0, fid
         assert c2.at[fid, "gain_db"] == round(want.gain_db / GAIN_DB_PER_RAW) * GAIN_DB_PER_RAW, fid
     assert (c2["exposure_us"] != c1["exposure_us"]).mean() > 0.9
+    # triggered after the write: every image was exposed with the settings on its row
+    _assert_images_match_settings(frames, _grey_means(out, frames), share=1.0)
     table = ingest([raw], tmp_path / "frames.parquet", tmp_path / "images",
                    IngestConfig(image_width=32, image_height=24), project_root=tmp_path)
     assert len(table) == 48 and set(table["camera"]) == {1, 2} and set(table["split"]) == {"train"}
