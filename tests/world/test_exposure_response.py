@@ -65,8 +65,11 @@ def test_open_road_inliers_form_an_inverted_u(sweeps):
     # short end: the sunlit road is already mid-grey at 75 µs, so only ~2 EV of the rising side (shot/read noise and
     # 8-bit quantisation of the darker areas) lies in the range — still a clear drop
     assert n[0] <= 0.75 * n[k], n
-    # long end: 30 ms in sunlight clips the whole frame, no gradient is left to detect
-    assert points[-1].saturated_fraction > 0.99 and n[-1] == 0, n
+    # long end: 30 ms in sunlight clips nearly the whole frame, few gradients are left to detect. Not all: under the
+    # CIE clear sky (issue 23) traversal 0's 32° sun gives 11 klux of skylight (the overcast profile gave 25 klux),
+    # so shadowed surfaces read ~0.1·11k/π ≈ 400 cd/m² and the darkest of them stay below saturation (measured 95.6 %
+    # clipped, 40 inliers against 457 at the peak)
+    assert points[-1].saturated_fraction > 0.9 and n[-1] <= 0.15 * n[k], n
 
 
 def test_tunnel_peak_moves_by_the_luminance_ratio(sweeps):

@@ -54,8 +54,15 @@ _TRAIN: dict[str, Any] = {
         "colour_rgb": [1.0, 0.86, 0.62], "rows_v_m": [0.0],  # lateral positions of lamp rows on the ceiling
     },
     "lighting": {
-        "daylight_tail_m": 18.0,  # e-folding length of daylight entering each portal
-        "daylight_tail_fraction": 0.2,  # fraction of outside diffuse illuminance reaching surfaces at the portal
+        # daylight inside: portal_view_factor = each opening's configuration factor × the luminance seen through it
+        # (expoctl.world.daylight) | exponential_tail = the two keys below (runs before issue 23)
+        "daylight_model": "portal_view_factor",
+        "daylight_tail_m": 18.0,  # exponential_tail: e-folding length of daylight entering each portal
+        "daylight_tail_fraction": 0.2,  # exponential_tail: fraction of outside global illuminance at the portal
+        # CIE 88 L20 for the threshold zone: cone_20deg = mean luminance in the 20° cone from the stopping distance
+        # (expoctl.world.portal_views) | road_only = the sunlit road's luminance (runs before issue 23)
+        "l20_method": "cone_20deg",
+        "l20_stopping_distance_m": 60.0,  # CIE 88 stopping distance at a 60 km/h design speed, level road
         "threshold_k": 0.04,  # CIE 88 threshold zone: road luminance k·L_access (reinforced lamps)
         "threshold_length_m": 15.0,
         "transition_length_m": 20.0,
@@ -135,7 +142,8 @@ _TEST: dict[str, Any] = {
         "colour_rgb": [0.92, 0.97, 1.08], "rows_v_m": [-2.5, 2.5],
     },
     "lighting": {
-        "daylight_tail_m": 25.0, "daylight_tail_fraction": 0.25, "threshold_k": 0.03, "threshold_length_m": 30.0,
+        "daylight_model": "portal_view_factor", "daylight_tail_m": 25.0, "daylight_tail_fraction": 0.25,
+        "l20_method": "cone_20deg", "l20_stopping_distance_m": 60.0, "threshold_k": 0.03, "threshold_length_m": 30.0,
         "transition_length_m": 40.0, "interreflection": 0.12,
     },
     "albedo": {
@@ -179,6 +187,8 @@ MATERIALS = ("road", "sidewalk", "verge", "facade_a", "facade_b", "wall", "hedge
              "portal", "hill", "roof", "pole", "sign")
 ROADSIDE_KINDS = ("facade_a", "facade_b", "wall", "hedge", "none")
 CLEAR_SKIES = ("cie_12", "cie_13", "overcast_profile")  # traversal.clear_sky (expoctl.world.clear_sky)
+DAYLIGHT_MODELS = ("portal_view_factor", "exponential_tail")  # lighting.daylight_model
+L20_METHODS = ("cone_20deg", "road_only")  # lighting.l20_method
 
 
 def deep_merge(base: dict, override: dict) -> dict:
@@ -397,6 +407,12 @@ def validate_city(cfg: dict) -> None:
             isinstance(r, bool) or not isinstance(r, (int, float)) for r in rows):
         raise ConfigError("world.city.lamps.rows_v_m", f"must be a non-empty list of lateral positions, got {rows!r}")
 
+    for key, allowed in (("daylight_model", DAYLIGHT_MODELS), ("l20_method", L20_METHODS)):
+        if _get(cfg, f"lighting.{key}") not in allowed:
+            raise ConfigError(f"world.city.lighting.{key}",
+                              f"must be one of {', '.join(allowed)}, got {_get(cfg, f'lighting.{key}')!r}")
+    # CIE 88 stopping distances run from ~15 m (20 km/h) to ~250 m (120 km/h, downhill)
+    _num(cfg, "lighting.l20_stopping_distance_m", lo=5.0, hi=400.0)
     _num(cfg, "lighting.daylight_tail_m", lo=0.0, lo_open=True, hi=200.0)
     _num(cfg, "lighting.daylight_tail_fraction", lo=0.0, hi=1.0)
     _num(cfg, "lighting.threshold_k", lo=0.0, hi=0.2)

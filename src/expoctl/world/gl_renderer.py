@@ -32,7 +32,7 @@ import numpy as np
 from expoctl.errors import ConfigError
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
-from expoctl.world import shade
+from expoctl.world import daylight, shade
 from expoctl.world.renderer import Renderer
 
 _SHADERS = Path(__file__).with_name("shaders")
@@ -86,6 +86,7 @@ def _header() -> str:
                                                 "CROWN_H", "ARC_C", "ARC_R", "HILL_H", "TUN_ID", "TUN_LEN", "L_OFF",
                                                 "L_H", "L_MAT", "R_OFF", "R_H", "R_MAT", "VMAX", "BOX0",
                                                 "BOX_STRIDE", "N_BOXES")}
+    ints["ARC_EDGES"] = daylight.ARC_EDGES
     ints.update(C_SCELL=_C_SCELL, C_SREM=_C_SREM, C_FCELL=_C_FCELL, C_FREM=_C_FREM, C_S12=_C_S12, C_TX0=_C_TX0,
                 C_O0=_C_O0, C_NE_D=_C_NE_D, C_NS_D=_C_NS_D,
                 SEG_STRIDE=SEG_STRIDE, MAT_SKY=shade.MAT_SKY, MAT_LAMP=shade.MAT_LAMP)
@@ -184,7 +185,7 @@ class GLRenderer(Renderer):
         n_mat = self.offs.shape[0]
         seg_bytes = self._seg64.size * 4
         sizes = {"N_MAT": n_mat, "LP_VEC4": _vec4s(rc.LP_N), "LAMP_VEC4": _vec4s(self.lamp_mult.size),
-                 "TUN_VEC4": _vec4s(len(self._lamp_count)), "LEVEL_VEC4": _vec4s(2 * self.offs.size),
+                 "PORTAL_VEC4": _vec4s(2 * len(self._lamp_count)), "TUN_VEC4": _vec4s(len(self._lamp_count)), "LEVEL_VEC4": _vec4s(2 * self.offs.size),
                  "MAT_VEC4": _vec4s(2 * n_mat), "SEG_IN_UBO": int(_seg_fits_uniform_block(ctx, seg_bytes)),
                  "SEG_VEC4_TOTAL": self._seg64.size // 4}
         prog, blur = _programs(ctx, sizes)
@@ -217,10 +218,11 @@ class GLRenderer(Renderer):
             t.repeat_x = t.repeat_y = False
         levels = np.concatenate([(self.offs // 3).ravel(), self.sizes.ravel()])
         mat_props = np.concatenate([self.albedo, self.scales])
-        # the Params block's constant arrays (offsets in 16-byte vec4 units); lp and lamp_mult change per conditions
+        # the Params block's constant arrays (offsets in 16-byte vec4 units); lp, lamp_mult and portal_lum change
+        # per conditions
         self._params_static = (_pad4(self._lamp_count, np.int32), _pad4(levels, np.int32), _pad4(mat_props, np.float32))
-        params_bytes = 16 * (sizes["LP_VEC4"] + sizes["LAMP_VEC4"] + sizes["TUN_VEC4"] + sizes["LEVEL_VEC4"]
-                             + sizes["MAT_VEC4"])
+        params_bytes = 16 * (sizes["LP_VEC4"] + sizes["LAMP_VEC4"] + sizes["PORTAL_VEC4"] + sizes["TUN_VEC4"]
+                             + sizes["LEVEL_VEC4"] + sizes["MAT_VEC4"])
         if params_bytes > ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"]:
             raise ValueError(f"too many tunnel lamps for the GL backend's uniform block ({params_bytes} bytes)")
         self._gl = {
@@ -260,7 +262,7 @@ class GLRenderer(Renderer):
         seg[:, _C_NS_D] = np.einsum("ij,ij->i", seg[:, rt.NS:rt.NS + 3], p0)
         gl["seg"].write(seg.astype(np.float32).tobytes())
         gl["params"].write(b"".join([_pad4(self.lp, np.float32), _pad4(self.lamp_mult.ravel(), np.float32),
-                                     *self._params_static]))
+                                     _pad4(self.portal_lum.ravel(), np.float32), *self._params_static]))
         if gl["seg_in_ubo"]:
             gl["seg"].bind_to_uniform_block(0)
         else:

@@ -3,7 +3,8 @@
 Shading is Lambertian: L = albedo · E / π per RGB channel (cd/m²; E in lux), with E from
 - outside: direct sun (n·s, shadow ray through the same walker) + sky diffuse E_sky·(1 + n_z)/2;
 - inside a tunnel: the lamps as flat Lambertian panels (I = L_lamp·A·cos θ, inverse-square, cosine at the surface),
-  a daylight tail frac·E_global·exp(−3x/tail_m) from each portal (x = depth into the tunnel; 5 % left at tail_m),
+  daylight through each portal opening, π·L_opening·F (F: the opening's configuration factor from the surface point,
+  expoctl.world.daylight; or, for old runs, a tail frac·E_global·exp(−3x/tail_m), 5 % left at tail_m),
   an interreflection ambient, and direct sun where the shadow ray leaves through a portal.
 Emitters: lamp panels (box-filtered coverage, so sub-pixel lamps do not flicker), sky (CIE overcast, CIE general
 clear sky or HDRI), sun disk.
@@ -46,7 +47,10 @@ LP_HDRI, LP_HDRI_AZ, LP_HDRI_SCALE = 36, 37, 38
 # analytic sky: LP_SKY_KIND 0 = CIE overcast, 1 = CIE general sky with parameters a, b, c, d, e at LP_SKY_ABCDE and
 # LP_SKY_NORM = 1 / (f(Zs)·φ(0)) (expoctl.world.clear_sky)
 LP_SKY_KIND, LP_SKY_ABCDE, LP_SKY_NORM = 39, 40, 45
-LP_N = 46
+# daylight inside tunnels: 0 = exponential tail (LP_TAIL_M, LP_TAIL_FRAC; runs before issue 23), 1 = view factor of
+# each portal opening × the luminance seen through it (expoctl.world.daylight; per-portal luminances in portal_lum)
+LP_DAYLIGHT_MODEL = 46
+LP_N = 47
 
 MAT_ROAD, MAT_SIDEWALK, MAT_VERGE = 0, 1, 2
 MAT_TWALL, MAT_TCEIL, MAT_PORTAL, MAT_HILL, MAT_ROOF = 7, 8, 9, 10, 11

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 from expoctl.errors import ConfigError
-from expoctl.world import clear_sky
+from expoctl.world import clear_sky, portal_views
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world.city import SUN_DISK_SOLID_ANGLE_SR, City, Conditions, Trajectory
@@ -114,6 +114,7 @@ class Renderer:
         self._base_lp = self._static_lighting(cfg, mip_bias, tmax_m)
         self._lamp_count, self._e_nom = self._lamp_layout(cfg)
         self._cache: dict = {}
+        self._lighting_cache: dict = {}  # conditions → (portal luminances, L20 per tunnel): see _portal_lighting
         # reach test before each roadside block/prop intersection (same image; False = exact test for every one,
         # the reference path tests/world/test_renderer_speedups.py compares against)
         self.cull = True
@@ -194,13 +195,21 @@ class Renderer:
             lp[rc.LP_HDRI_AZ] = math.radians(float(conditions.hdri.get("azimuth_deg", 0.0)))
             lp[rc.LP_E_SKY] = e_sky
         light = cfg["lighting"]
+        lp[rc.LP_E_LAMP_NOM] = 0.0 if not cfg["tunnels"] else float(np.mean(self._e_nom))
+        lp[rc.LP_DAYLIGHT_MODEL] = 1.0 if light["daylight_model"] == "portal_view_factor" else 0.0
+        self.lp = lp  # the portal views below render with this lighting
+        self.portal_lum, l20 = self._portal_lighting(conditions, lp)
         albedo_road = float(cfg["albedo"]["road"])
         e_glob = lp[rc.LP_E_SKY] + lp[rc.LP_E_SUN] * max(lp[2], 0.0)
-        l_access = albedo_road * e_glob / math.pi  # CIE 88 L20 approximated by the sunlit/daylit road ahead
+        # CIE 88 L20 per tunnel: the 20° cone (portal_views.access_luminance_l20), or (old runs) the sunlit/daylit
+        # road ahead alone
+        l_road = albedo_road * e_glob / math.pi
+        self.l20_cd_m2 = l20 if l20 is not None else np.full(len(self._lamp_count), l_road)
         spacing = float(cfg["lamps"]["spacing_m"])
         mult = np.ones((len(self._lamp_count), int(self._lamp_count.max())))
         k, l_th, l_tr = float(light["threshold_k"]), float(light["threshold_length_m"]), float(light["transition_length_m"])
         for ti, n in enumerate(self._lamp_count):
+            l_access = float(self.l20_cd_m2[ti])
             l_nom = albedo_road * self._e_nom[ti] * (1 + float(light["interreflection"])) / math.pi
             for j in range(n):
                 x = 0.5 * spacing + j * spacing
@@ -214,10 +223,29 @@ class Renderer:
                     target = 0.0
                 mult[ti, j] = max(1.0, target / max(l_nom, 1e-9))
         self.lamp_mult = mult
-        lp[rc.LP_E_LAMP_NOM] = 0.0 if not cfg["tunnels"] else float(np.mean(self._e_nom))
-        self.lp = lp
         self.conditions = conditions
         self._cache.clear()
+
+    def _portal_lighting(self, conditions: Conditions, lp: np.ndarray):
+        """(portal_lum (n_tunnels, 2) cd/m², L20 per tunnel or None for the road-only L20) for these conditions,
+        from small renders at each tunnel (portal_views), cached per conditions: a traversal's frames share them."""
+        light = self.city.cfg["lighting"]
+        view_factor = light["daylight_model"] == "portal_view_factor"
+        cone = light["l20_method"] == "cone_20deg"
+        n_tun = len(self._lamp_count)
+        if not self.city.cfg["tunnels"] or not (view_factor or cone):
+            return np.zeros((n_tun, 2)), None
+        key = (tuple(float(v) for v in conditions.sun_direction), float(conditions.sun_illuminance_lux),
+               float(conditions.sky_zenith_cd_m2), bool(conditions.overcast), conditions.sky,
+               repr(sorted(conditions.hdri.items())) if conditions.hdri else None)
+        if key not in self._lighting_cache:
+            if len(self._lighting_cache) > 16:
+                self._lighting_cache.clear()
+            lum = portal_views.portal_luminances(self, lp) if view_factor else np.zeros((n_tun, 2))
+            l20 = (portal_views.access_luminance_l20(self, lp, lum, float(light["l20_stopping_distance_m"]))
+                   if cone else None)
+            self._lighting_cache[key] = (lum, l20)
+        return self._lighting_cache[key]
 
     # ------------------------------------------------------------------ rendering
     def locate(self, position: np.ndarray):
@@ -247,7 +275,7 @@ class Renderer:
         mat = np.empty((self.height, self.width), np.uint8)
         K = self.K
         render_kernel(self.seg, self.lp, self.texels, self.offs, self.sizes, self.scales, self.albedo,
-                      self.lamp_mult, self._lamp_count, self.hdri, np.ascontiguousarray(pose[:3, 3]),
+                      self.lamp_mult, self._lamp_count, self.portal_lum, self.hdri, np.ascontiguousarray(pose[:3, 3]),
                       np.ascontiguousarray(pose[:3, :3]), K[0, 0], K[1, 1], K[0, 2], K[1, 2], i0, inside,
                       lum, depth, code, mat, self.cull)
         if glare:

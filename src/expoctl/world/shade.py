@@ -10,6 +10,7 @@ from numba import njit, prange
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world.clear_sky import general_sky_inline
+from expoctl.world.daylight import opening_factors_inline
 
 MAT_SKY, MAT_LAMP = 255, 254
 
@@ -116,10 +117,11 @@ _box_cover = rc._box_cover
 # inlined into the parallel pixel loop: a call passed ~110 scalars (every array as ~9) per pixel; inlining it and
 # its helpers made the whole kernel ~1.3× faster (measured, 320×240, one thread)
 @njit(cache=True, inline="always")
-def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, hdri,
+def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, portal_lum, hdri,
                 ox, oy, oz, dx, dy, dz, pix_rad, start_seg, start_inside, out, tex, cull):
     """Luminance of one ray into out[0:3]; returns (t, code, material).
-    seg: a raycast.with_frame_terms table for the camera position (ox, oy, oz) and the sun direction (lp[0:3])."""
+    seg: a raycast.with_frame_terms table for the camera position (ox, oy, oz) and the sun direction (lp[0:3]).
+    portal_lum: (n_tunnels, 2) mean luminance (cd/m², Y) seen through each tunnel's start and end openings."""
     t, code, j, air, air_in, u, v, w, nu, nv, nw, mat = rc.trace(
         seg, start_seg, start_inside, ox, oy, oz, dx, dy, dz, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
         True, False)
@@ -190,12 +192,18 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
     else:
         x = s_hit - seg[j, rt.TUN_S0]
         tl = seg[j, rt.TUN_LEN]
-        tail = lp[rc.LP_TAIL_M]
-        e_glob = lp[rc.LP_E_SKY] + e_sun * max(sun_z, 0.0)
-        e_day += lp[rc.LP_TAIL_FRAC] * e_glob * (math.exp(-3.0 * x / tail) + math.exp(-3.0 * (tl - x) / tail))
+        tid = int(seg[j, rt.TUN_ID])
+        if lp[rc.LP_DAYLIGHT_MODEL] > 0.5:
+            # diffuse daylight through both openings (the sun's own patch is the shadow ray's, above)
+            f0, f1 = opening_factors_inline(seg[j, rt.HW], seg[j, rt.WALL_H], seg[j, rt.CROWN_H], seg[j, rt.ARC_C],
+                                            seg[j, rt.ARC_R], x, tl - x, v, w, nv, nw)
+            e_day += math.pi * (f0 * portal_lum[tid, 0] + f1 * portal_lum[tid, 1])
+        else:
+            tail = lp[rc.LP_TAIL_M]
+            e_glob = lp[rc.LP_E_SKY] + e_sun * max(sun_z, 0.0)
+            e_day += lp[rc.LP_TAIL_FRAC] * e_glob * (math.exp(-3.0 * x / tail) + math.exp(-3.0 * (tl - x) / tail))
         e_lamp += _lamp_illuminance(seg, j, lp, lamp_mult, lamp_count, x, u, v, w, nu, nv, nw)
         spacing = lp[rc.LP_LAMP_SPACING]
-        tid = int(seg[j, rt.TUN_ID])
         kc = min(max(int(math.floor((x - 0.5 * spacing) / spacing + 0.5)), 0), lamp_count[tid] - 1)
         e_lamp += lp[rc.LP_INTERREFL] * lp[rc.LP_E_LAMP_NOM] * lamp_mult[tid, kc]
     for c in range(3):
@@ -225,7 +233,7 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
 
 
 @njit(cache=True, parallel=True)
-def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, hdri,
+def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, portal_lum, hdri,
                   cam, rot, fx, fy, cx, cy, start_seg, start_inside, out_l, out_depth, out_code, out_mat, cull):
     """Render every pixel. rot: camera-to-world rotation (columns = camera x right, y down, z forward).
     cull: cheap reach test before each block/prop intersection (raycast.trace); False = exact test for all."""
@@ -246,7 +254,8 @@ def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_
             dy = (rot[1, 0] * cxr + rot[1, 1] * cyr + rot[1, 2]) * nrm
             dz = (rot[2, 0] * cxr + rot[2, 1] * cyr + rot[2, 2]) * nrm
             # a pixel's angular size shrinks off-axis (cos² radially, cos tangentially): use cos^1.5 ≈ nrm·sqrt(nrm)
-            t, code, mat = shade_pixel(segf, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, hdri,
+            t, code, mat = shade_pixel(segf, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count,
+                                       portal_lum, hdri,
                                        cam[0], cam[1], cam[2], dx, dy, dz, pix_rad * nrm * math.sqrt(nrm), start_seg,
                                        start_inside, px, tex, cull)
             out_l[yy, xx, 0] = px[0]

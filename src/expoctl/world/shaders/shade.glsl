@@ -6,12 +6,14 @@
 layout(std140, binding = 1) uniform Params {
     vec4 lp4[LP_VEC4];            // lighting vector lp
     vec4 lamp_mult4[LAMP_VEC4];   // (n_tunnels, lamp_stride) lamp multipliers
+    vec4 portal4[PORTAL_VEC4];    // (n_tunnels, 2) luminance seen out of each tunnel's start and end openings
     ivec4 lamp_count4[TUN_VEC4];
     ivec4 tex_level4[LEVEL_VEC4]; // texture level offsets (M×L, texel units), then sizes (M×L)
     vec4 mat4_[MAT_VEC4];         // albedo (N_MAT), then texture scales (N_MAT)
 };
 #define LP(k) lp4[(k) >> 2][(k) & 3]
 #define LAMP_MULT(k) lamp_mult4[(k) >> 2][(k) & 3]
+#define PORTAL_LUM(k) portal4[(k) >> 2][(k) & 3]
 #define LAMP_COUNT(k) lamp_count4[(k) >> 2][(k) & 3]
 #define TEX_LEVEL(k) tex_level4[(k) >> 2][(k) & 3]
 #define MAT_PROP(k) mat4_[(k) >> 2][(k) & 3]
@@ -177,6 +179,83 @@ float road_marking(float s, float v, float half_v, float half_s) {
     return min(cov, 1.0);
 }
 
+// atan(t) for t >= 0 to float32 rounding (llvmpipe's atan is off by ~1.5e-5 relative, which the daylight sum would
+// amplify): octant reduction to |u| <= tan(π/8), then the odd Taylor series (u² <= 0.172: 12 terms reach 1e-9)
+float atan_pos(float t) {
+    bool inv = t > 1.0;
+    float u = inv ? 1.0 / t : t;
+    float off = 0.0;
+    if (u > 0.41421356) { u = (u - 1.0) / (u + 1.0); off = 0.25 * PI; }
+    float z = u * u;
+    float s = 1.0 / 23.0;
+    for (int k = 10; k >= 0; --k) s = 1.0 / float(2 * k + 1) - z * s;
+    float r = off + u * s;
+    return inv ? 0.5 * PI - r : r;
+}
+
+// atan(t) − t for t >= 0 without cancellation for small t: −t³/3 + t⁵/5 − … (t² < 0.25: 14 terms reach 1e-9)
+float atan_minus_t(float t) {
+    if (t >= 0.5) return atan_pos(t) - t;
+    float z = t * t;
+    float q = 1.0 / 29.0;  // q = 1/3 − z/5 + z²/7 − … (Horner, 14 terms)
+    for (int k = 13; k >= 1; --k) q = 1.0 / float(2 * k + 1) - z * q;
+    return -t * z * q;
+}
+
+// one edge of Lambert's polygon formula minus m/x, for the two portals at axial distances x.x and x.y, in the
+// cancellation-free form of daylight._edge
+vec2 vf_edge(vec2 x, vec2 a, vec2 b, vec2 n) {
+    float dv = b.x - a.x, dw = a.y - b.y;
+    float m = n.x * dw + n.y * dv;
+    if (m == 0.0) return vec2(0.0);
+    float l2 = dv * dv + dw * dw;
+    float d = a.x * b.y - a.y * b.x;
+    float d2 = d * d;
+    float pp = dot(a, b);
+    vec2 out_;
+    for (int k = 0; k < 2; ++k) {
+        float xx = x[k];
+        float nc = sqrt(d2 + xx * xx * l2);
+        float p = xx * xx + pp;
+        out_[k] = p > 0.0 ? xx * m * atan_minus_t(nc / p) / nc - m * pp / (xx * p)
+                          : xx * m * (PI - atan_pos(nc / -p)) / nc - m / xx;
+    }
+    return out_;
+}
+
+// configuration factors of a tunnel's two openings at axial distances x0, x1 from the surface point p = (v, w) with
+// normal n = (nv, nw) (daylight.opening_factors_inline: box rectangle, or walls + ARC_EDGES arch chords)
+vec2 opening_factors(int j, float x0, float x1, vec2 p, vec2 n) {
+    vec2 x = max(vec2(x0, x1), vec2(1.0e-3));
+    float hw = S(j, C_HW), wall_h = S(j, C_WALL_H), crown_h = S(j, C_CROWN_H);
+    float arc_c = S(j, C_ARC_C), arc_r = S(j, C_ARC_R);
+    float top = arc_r == 0.0 ? crown_h : wall_h;
+    vec2 q0 = vec2(-hw, 0.0) - p, q1 = vec2(hw, 0.0) - p;
+    vec2 acc = vf_edge(x, q0, q1, n);
+    vec2 pv = vec2(hw, top) - p;
+    acc += vf_edge(x, q1, pv, n);
+    if (arc_r > 0.0) {
+        float a0 = atan(wall_h - arc_c, hw);
+        float step = (PI - 2.0 * a0) / float(ARC_EDGES);
+        float cs = cos(step), sn = sin(step);
+        float ca = hw / arc_r, sa = (wall_h - arc_c) / arc_r;
+        for (int k = 0; k < ARC_EDGES; ++k) {
+            float c2 = ca * cs - sa * sn;
+            sa = sa * cs + ca * sn;
+            ca = c2;
+            vec2 q = vec2(arc_r * ca, arc_c + arc_r * sa) - p;
+            acc += vf_edge(x, pv, q, n);
+            pv = q;
+        }
+    } else {
+        vec2 q = vec2(-hw, crown_h) - p;
+        acc += vf_edge(x, pv, q, n);
+        pv = q;
+    }
+    acc += vf_edge(x, pv, q0, n);
+    return abs(acc) / (2.0 * PI);
+}
+
 int lamp_index(int tid, float x, float spacing) {
     return clamp(int(floor((x - 0.5 * spacing) / spacing + 0.5)), 0, LAMP_COUNT(tid) - 1);
 }
@@ -245,11 +324,17 @@ vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside
         e_day += LP(LP_E_SKY) * 0.5 * (1.0 + nw_.z);
     } else {
         float tl = S(j, C_TUN_LEN);
-        float tail = LP(LP_TAIL_M);
-        float e_glob = LP(LP_E_SKY) + e_sun * max(sun.z, 0.0);
-        e_day += LP(LP_TAIL_FRAC) * e_glob * (exp(-3.0 * x / tail) + exp(-3.0 * (tl - x) / tail));
-        e_lamp += lamp_illuminance(j, x, hit.p, nl);
         int tid = int(S(j, C_TUN_ID));
+        if (LP(LP_DAYLIGHT_MODEL) > 0.5) {
+            // diffuse daylight through both openings (the sun's own patch is the shadow ray's, above)
+            vec2 f = opening_factors(j, x, tl - x, hit.p.yz, nl.yz);
+            e_day += PI * (f.x * PORTAL_LUM(2 * tid) + f.y * PORTAL_LUM(2 * tid + 1));
+        } else {
+            float tail = LP(LP_TAIL_M);
+            float e_glob = LP(LP_E_SKY) + e_sun * max(sun.z, 0.0);
+            e_day += LP(LP_TAIL_FRAC) * e_glob * (exp(-3.0 * x / tail) + exp(-3.0 * (tl - x) / tail));
+        }
+        e_lamp += lamp_illuminance(j, x, hit.p, nl);
         int kc = lamp_index(tid, x, LP(LP_LAMP_SPACING));
         e_lamp += LP(LP_INTERREFL) * LP(LP_E_LAMP_NOM) * LAMP_MULT(tid * lamp_stride + kc);
     }
