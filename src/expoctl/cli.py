@@ -5,6 +5,7 @@
   expoctl preview ...                            render a route under a controller to a contact sheet / video
   expoctl drive --camera ID --controller NAME ...  drive a real camera in closed loop, record it, print timing
   expoctl record --camera1 ID --camera2 ID ...   record dual-camera training data on two real cameras
+  expoctl cameras                                list the cameras found (ids for --camera)
 
 Each subcommand lives in a module exposing `add_arguments(parser)` and `run(args) -> int`.
 """
@@ -23,6 +24,7 @@ SUBCOMMANDS = {
     "preview": ("expoctl.rig.preview", "render a route under a controller to a contact sheet"),
     "drive": ("expoctl.cameras.drive_cli", "drive a real camera in closed loop with a controller"),
     "record": ("expoctl.cameras.record_cli", "record dual-camera training data on two real cameras"),
+    "cameras": ("expoctl.cameras.list_cli", "list the cameras found"),
 }
 
 
@@ -44,6 +46,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"expoctl {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # commands that record handle Ctrl-C themselves; anything else just stops
+        print(f"expoctl {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -173,7 +173,10 @@ def test_camera_that_disappears_mid_run(emulators, tmp_path):
 
 
 def test_unknown_camera_and_out_of_range_limits_are_named(emulators, tmp_path):
-    cam_a, _ = emulators.ids()
+    cam_a, cam_b = emulators.ids()
+    listing = emulators.expoctl("cameras")
+    assert listing.returncode == 0 and cam_a in listing.stdout and cam_b in listing.stdout
+    assert "127.0.0.2" in listing.stdout
     res = emulators.expoctl("drive", "--camera", "NO-SUCH-CAM", "--controller", "agae", "--frames", "5",
                             "--out", str(tmp_path / "x"), *camera_args())
     assert res.returncode == 2 and "Traceback" not in res.stderr
