@@ -369,14 +369,25 @@ class AravisCamera(Camera):
             self.stop()
         finally:
             if self._lost and self._cam is not None:
-                # Releasing a GigE device writes to it (give up control); to a device that is gone each write
-                # times out after seconds. Keep the objects alive until the process ends instead.
-                _LOST_DEVICES.append((self._stream, self._cam, self._dev))
+                # Releasing a GigE device writes to it (give up control, stop the stream); to a device that is gone
+                # each write times out after 2.5 s, and Python would release it at exit. Never release it instead:
+                # one extra GObject reference each (the process is about to report the failure and end).
+                for obj in (self._stream, self._cam, self._dev):
+                    _leak(obj)
             self._stream = None
             self._cam = None
             self._dev = None
 
 
-#: devices that stopped answering, kept referenced so their finalizers do not block (AravisCamera.close)
-_LOST_DEVICES: list = []
+def _leak(obj) -> None:
+    """Add a GObject reference that is never dropped (PyGObject does not expose g_object_ref)."""
+    if obj is None:
+        return
+    import ctypes
+
+    get = ctypes.pythonapi.PyCapsule_GetPointer
+    get.restype, get.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+    gobject = ctypes.CDLL("libgobject-2.0.so.0")
+    gobject.g_object_ref.restype, gobject.g_object_ref.argtypes = ctypes.c_void_p, [ctypes.c_void_p]
+    gobject.g_object_ref(get(obj.__gpointer__, None))
 
