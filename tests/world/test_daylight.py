@@ -36,8 +36,10 @@ def f_perpendicular_corner(a, h, c):
     return (math.atan(a / c) - c / s * math.atan(a / s)) / (2 * math.pi)
 
 
-def _box(x, v, w, nv, nw, width=10.0, height=5.5):
-    return dl.opening_factors_inline(width / 2, height, height, 0.0, 0.0, x, 1000.0, v, w, nv, nw)[0]
+def _box(x, v, w, nv, nw, width=10.0, height=5.5, below=False):
+    """F of the portal at axial distance x (below=True: G, of its part below the point's height), box 10 × 5.5 m."""
+    out = dl.opening_factors_inline(width / 2, height, height, 0.0, 0.0, x, 1000.0, v, w, nv, nw)
+    return out[2] if below else out[0]
 
 
 def _arch(h=6.8, hw=5.5):
@@ -64,8 +66,12 @@ def test_kernel_perpendicular_cases(x):
     # element's height, each perpendicular with a corner at the foot
     want = f_perpendicular_corner(2.0, 10.0, x) + f_perpendicular_corner(3.5, 10.0, x)
     assert _box(x, 5.0, 2.0, -1.0, 0.0) == pytest.approx(want, rel=1e-9)
-    # ceiling centre (normal down) sees the same as the road centre
+    # … and the part below its height (rays descending to the ground outside) is the lower corner rectangle alone
+    assert _box(x, 5.0, 2.0, -1.0, 0.0, below=True) == pytest.approx(f_perpendicular_corner(2.0, 10.0, x), rel=1e-9)
+    # ceiling centre (normal down) sees the same as the road centre; all of it below, none of the road's
     assert _box(x, 0.0, 5.5, 0.0, -1.0) == pytest.approx(_box(x, 0.0, 0.0, 0.0, 1.0), rel=1e-9)
+    assert _box(x, 0.0, 5.5, 0.0, -1.0, below=True) == _box(x, 0.0, 5.5, 0.0, -1.0)
+    assert _box(x, 1.75, 0.0, 0.0, 1.0, below=True) == 0.0
 
 
 def _monte_carlo(point, normal, inside, x, n=2_000_000, seed=5):
@@ -105,11 +111,15 @@ def test_arch_against_monte_carlo(x):
     cases = [((1.75, 0.0), (0.0, 1.0)), ((-hw, 1.5), (1.0, 0.0)),
              ((rr * math.sin(ang), c + rr * math.cos(ang)), (-math.sin(ang), -math.cos(ang)))]
     for (v, w), (nv, nw) in cases:
-        f = dl.opening_factors_inline(hw, wall_h, h, c, rr, x, 500.0, v, w, nv, nw)[0]
+        f, _, g, _ = dl.opening_factors_inline(hw, wall_h, h, c, rr, x, 500.0, v, w, nv, nw)
         assert f == pytest.approx(dl.opening_factor(x, v, w, nv, nw, hw, wall_h, h, c, rr), rel=1e-9)
+        assert g == pytest.approx(dl.opening_factor(x, v, w, nv, nw, hw, wall_h, h, c, rr, below=True), abs=1e-12)
         mc = _monte_carlo((v, w), (nv, nw), in_poly, x)
         sigma = math.sqrt(mc * (1 - mc) / 2_000_000)
         assert abs(f - mc) < 4 * sigma + 1e-6, (f, mc, sigma)
+        # the part below the point's height: rays that also descend (W ≤ w where they cross the portal plane)
+        mc_low = _monte_carlo((v, w), (nv, nw), lambda vv, ww, w0=w: in_poly(vv, ww) & (ww <= w0), x)
+        assert abs(g - mc_low) < 4 * math.sqrt(max(mc_low, 1e-7) / 2_000_000) + 1e-6, (g, mc_low)
         # the inscribed polygon misses 0.7 % of the arch's area: the strips between chords and arc, all near the
         # crown, so they weigh more for the road (measured 0.2 % at 2 m … 1.3 % at 20 m; same rays, so the
         # difference is those strips alone)
@@ -180,8 +190,8 @@ def test_rendered_tunnel_road_is_lit_by_the_openings(sunny_train):
     e_glob = traj.conditions.global_illuminance_lux
     levels = []
     for x in (3.0, 5.0, 10.0, 20.0, 40.0):
-        f0, f1 = dl.opening_factors_inline(hw, h, h, 0.0, 0.0, x, tl - x, city.lane_offset_m, 0.0, 0.0, 1.0)
-        e_new = math.pi * (f0 * r.portal_lum[0, 0] + f1 * r.portal_lum[0, 1])
+        f0, f1 = dl.opening_factors_inline(hw, h, h, 0.0, 0.0, x, tl - x, city.lane_offset_m, 0.0, 0.0, 1.0)[:2]
+        e_new = math.pi * (f0 * r.portal_lum[0, 0, 0] + f1 * r.portal_lum[0, 1, 0])  # the road only sees upward
         e_tail = lt["daylight_tail_fraction"] * e_glob * (math.exp(-3 * x / lt["daylight_tail_m"])
                                                           + math.exp(-3 * (tl - x) / lt["daylight_tail_m"]))
         ratio = _road_below(r, city, x) / _road_below(rs["exponential_tail"], city, x)
@@ -191,7 +201,7 @@ def test_rendered_tunnel_road_is_lit_by_the_openings(sunny_train):
         levels.append(e_new)
     assert all(a > b for a, b in zip(levels, levels[1:]))
     # mid-tunnel the two openings give the same F
-    f0, f1 = dl.opening_factors_inline(hw, h, h, 0.0, 0.0, tl / 2, tl / 2, city.lane_offset_m, 0.0, 0.0, 1.0)
+    f0, f1 = dl.opening_factors_inline(hw, h, h, 0.0, 0.0, tl / 2, tl / 2, city.lane_offset_m, 0.0, 0.0, 1.0)[:2]
     assert f0 == pytest.approx(f1, rel=1e-12)
 
 
@@ -202,7 +212,7 @@ def test_portal_luminance_excludes_the_sun_and_is_outdoor_scene(sunny_train):
     road_lit = city.cfg["albedo"]["road"] * c.global_illuminance_lux / math.pi
     # the brightest sky (next to the sun) and the brightest surface (albedo ≤ 0.5, fully lit) bound the mean
     sky_max = c.sky_zenith_cd_m2 * float(cs.relative_luminance(c.sky, c.sun_direction, c.sun_direction))
-    assert r.portal_lum.shape == (2, 2)
+    assert r.portal_lum.shape == (2, 2, 2)  # tunnel, [start, end], [looking up, looking down]
     # between shaded outdoor surfaces and the brightest thing outside: no sun disk (~1e9 cd/m²) in the mean
     assert np.all(r.portal_lum > 0.1 * road_lit)
     assert np.all(r.portal_lum < max(sky_max, 0.5 * c.global_illuminance_lux / math.pi))

@@ -9,7 +9,8 @@ plane-element-to-rectangle cases, parallel and perpendicular, from it):
     F = |Σ_k θ_k · n·(r_k × r_k+1) / |r_k × r_k+1|| / (2π),   θ_k = angle between r_k and r_k+1.
 The opening is the tunnel cross-section (box: the width × height rectangle; arch: the true shape — vertical walls to the
 springing line, then the circular arch as ARC_EDGES chords, an inscribed polygon whose area is 0.7 % short of the
-test city's arch; its F is 0.2–1.3 % short for road points 2–20 m from the portal, tests/world/test_daylight.py), in the plane through the portal perpendicular to the tunnel axis at distance X along the axis from P. The
+test city's arch; its F is 0.2–1.3 % short for road points 2–20 m from the portal, tests/world/test_daylight.py),
+in the plane through the portal perpendicular to the tunnel axis at distance X along the axis from P. The
 cross-section is convex and P lies on its boundary with an inward normal, so no part of the opening is behind P's tangent
 plane and the formula needs no clipping.
 
@@ -18,9 +19,13 @@ minus those of P) and n = (0, n_v, n_w) (tunnel surfaces: road up, walls sideway
     r_a × r_b = (V_a W_b − W_a V_b,  X (W_a − W_b),  X (V_b − V_a)),   n·(r_a × r_b) = X (n_v (W_a − W_b) + n_w (V_b − V_a)).
 The kernel evaluates each edge's term in a rearranged, cancellation-free form (_edge).
 
+The opening's part below P's height (G ≤ F) is the polygon clipped to W ≤ w: rays through it descend and see the
+ground outside, the rest rise; E = π·(L_up·(F − G) + L_down·G), L_up / L_down from portal_views.portal_luminances.
+
 Assumptions (documented limits): the tunnel is straight between P and the portal (X = distance along the tunnel; in a
-curved tunnel the bend hides part of the opening, so this overestimates deep inside a bend); each opening has one mean
-luminance (portal_views.portal_luminances); light reflected by the tunnel's own surfaces is not added. The direct sun is
+curved tunnel the bend hides part of the opening, so this overestimates deep inside a bend); the opening has one mean
+luminance for rising and one for descending rays (portal_views.portal_luminances); light reflected by the tunnel's own
+surfaces is not added. The direct sun is
 not in this term: it stays traced by the shadow ray, and the opening luminance is estimated without the sun's disk.
 """
 
@@ -62,11 +67,29 @@ def polygon_view_factor(point: np.ndarray, normal: np.ndarray, vertices: np.ndar
     return abs(total) / (2.0 * math.pi)
 
 
+def clip_below(poly: np.ndarray, w: float) -> np.ndarray:
+    """The part W ≤ w of a convex polygon (K, 2) of (V, W) vertices (Sutherland–Hodgman; empty → (0, 2))."""
+    out = []
+    for k in range(len(poly)):
+        a, b = poly[k], poly[(k + 1) % len(poly)]
+        a_in, b_in = a[1] <= w, b[1] <= w
+        if a_in:
+            out.append(a)
+        if a_in != b_in:
+            out.append(a + (b - a) * (w - a[1]) / (b[1] - a[1]))
+    return np.array(out).reshape(-1, 2)
+
+
 def opening_factor(x_m: float, v: float, w: float, nv: float, nw: float, hw: float, wall_h: float, crown_h: float,
-                   arc_c: float, arc_r: float) -> float:
+                   arc_c: float, arc_r: float, below: bool = False) -> float:
     """Configuration factor of a portal opening at axial distance x_m from a tunnel-surface point at (v, w) with normal
-    (0, nv, nw) in the cross-section frame (numpy reference of the kernel's opening_factors_inline)."""
+    (0, nv, nw) in the cross-section frame; below=True: of the opening's part below the point's height (numpy
+    reference of the kernel's opening_factors_inline)."""
     poly = cross_section_polygon(hw, wall_h, crown_h, arc_c, arc_r)
+    if below:
+        poly = clip_below(poly, w)
+        if len(poly) < 3:
+            return 0.0
     verts = np.column_stack([np.full(len(poly), max(x_m, 1.0e-3)), poly])
     return polygon_view_factor(np.array([0.0, v, w]), np.array([0.0, nv, nw]), verts)
 
@@ -121,23 +144,41 @@ def _edge_at(x, d2, l2, pp, m):
 
 @njit(cache=True, inline="always")
 def opening_factors_inline(hw, wall_h, crown_h, arc_c, arc_r, x0, x1, v, w, nv, nw):
-    """Configuration factors (F0, F1) of a tunnel's two openings, at axial distances x0 and x1 (m), from the surface
-    point (v, w) with normal (0, nv, nw): one walk over the cross-section's edges serves both portals."""
+    """Configuration factors of a tunnel's two openings, at axial distances x0 and x1 (m), from the surface point
+    (v, w) with normal (0, nv, nw): (F0, F1) of the whole openings and (G0, G1) of their parts below the point's own
+    height w — the rays through those descend and see the ground outside, the rest rise and see walls, facades and sky
+    (portal_views gives each part its luminance). One walk over the cross-section's edges serves all four; the lower
+    part is the polygon clipped to W ≤ w (Sutherland–Hodgman, streamed along the same walk)."""
     x0 = max(x0, 1.0e-3)  # at the portal plane itself the formula's limit (F = 1/2 on the road) is reached smoothly
     x1 = max(x1, 1.0e-3)
-    s0 = 0.0
-    s1 = 0.0
-    # road edge, right wall (box: to the ceiling; arch: to the springing line)
+    f0 = 0.0
+    f1 = 0.0
+    g0 = 0.0
+    g1 = 0.0
     top = crown_h if arc_r == 0.0 else wall_h
-    pts_v0, pts_w0 = -hw - v, -w
-    pts_v1, pts_w1 = hw - v, -w
-    e0, e1 = _edge(x0, x1, pts_v0, pts_w0, pts_v1, pts_w1, nv, nw)
-    s0 += e0
-    s1 += e1
+    # the road (w = 0) sees nothing below itself; the box ceiling sees the whole opening below (G = F, set at the end)
+    low = w > 1.0e-6 and not (arc_r == 0.0 and w >= crown_h - 1.0e-6)
+    wc = w if w < top else top  # the clip line within the walls' height
+    bl_v, bl_w = -hw - v, -w  # bottom-left corner, relative to the point
+    br_v, br_w = hw - v, -w
+    # bottom edge
+    e0, e1 = _edge(x0, x1, bl_v, bl_w, br_v, br_w, nv, nw)
+    f0 += e0
+    f1 += e1
+    if low:
+        g0 += e0
+        g1 += e1
+        # the lower part's right wall, up to the clip line or the springing line
+        e0, e1 = _edge(x0, x1, br_v, br_w, br_v, wc - w, nv, nw)
+        g0 += e0
+        g1 += e1
+    # right wall (box: to the ceiling; arch: to the springing line)
     pv, pw = hw - v, top - w
-    e0, e1 = _edge(x0, x1, pts_v1, pts_w1, pv, pw, nv, nw)
-    s0 += e0
-    s1 += e1
+    e0, e1 = _edge(x0, x1, br_v, br_w, pv, pw, nv, nw)
+    f0 += e0
+    f1 += e1
+    # exit point of the lower part's boundary on the clip line (where the walk first rises above w)
+    out_v, out_w = br_v, wc - w
     if arc_r > 0.0:
         # arch: chords from angle a0 to π − a0 around (0, arc_c), vertices by rotation (one sin/cos pair per pixel)
         a0 = math.atan2(wall_h - arc_c, hw)
@@ -148,17 +189,51 @@ def opening_factors_inline(hw, wall_h, crown_h, arc_c, arc_r, x0, x1, v, w, nv, 
             ca, sa = ca * cs - sa * sn, sa * cs + ca * sn
             qv, qw = arc_r * ca - v, arc_c + arc_r * sa - w
             e0, e1 = _edge(x0, x1, pv, pw, qv, qw, nv, nw)
-            s0 += e0
-            s1 += e1
+            f0 += e0
+            f1 += e1
+            if low and w > wall_h:  # clip the chord to W ≤ w (relative: qw ≤ 0)
+                p_in, q_in = pw <= 0.0, qw <= 0.0
+                if p_in and q_in:
+                    g0 += e0
+                    g1 += e1
+                elif p_in or q_in:
+                    iv = pv + (qv - pv) * (0.0 - pw) / (qw - pw)  # the chord's crossing of the clip line
+                    if p_in:  # leaving: the part up to the crossing
+                        e0, e1 = _edge(x0, x1, pv, pw, iv, 0.0, nv, nw)
+                        out_v, out_w = iv, 0.0
+                    else:  # entering: the cut along the clip line, then the rest of the chord
+                        e0, e1 = _edge(x0, x1, out_v, out_w, iv, 0.0, nv, nw)
+                        g0 += e0
+                        g1 += e1
+                        e0, e1 = _edge(x0, x1, iv, 0.0, qv, qw, nv, nw)
+                    g0 += e0
+                    g1 += e1
             pv, pw = qv, qw
     else:
         qv, qw = -hw - v, crown_h - w
         e0, e1 = _edge(x0, x1, pv, pw, qv, qw, nv, nw)
-        s0 += e0
-        s1 += e1
+        f0 += e0
+        f1 += e1
         pv, pw = qv, qw
+    if low and w <= wall_h:
+        # below the springing line (every clipped box): the lower part is the rectangle [−hw, hw] × [0, w]
+        e0, e1 = _edge(x0, x1, br_v, 0.0, bl_v, 0.0, nv, nw)  # the cut (relative w = 0)
+        g0 += e0
+        g1 += e1
+        e0, e1 = _edge(x0, x1, bl_v, 0.0, bl_v, bl_w, nv, nw)
+        g0 += e0
+        g1 += e1
+    elif low:
+        # above the springing line: the lower part's left wall, down from the springing line
+        e0, e1 = _edge(x0, x1, pv, pw, bl_v, bl_w, nv, nw)
+        g0 += e0
+        g1 += e1
     # left wall back down to the road edge
-    e0, e1 = _edge(x0, x1, pv, pw, pts_v0, pts_w0, nv, nw)
-    s0 += e0
-    s1 += e1
-    return abs(s0) / (2.0 * math.pi), abs(s1) / (2.0 * math.pi)
+    e0, e1 = _edge(x0, x1, pv, pw, bl_v, bl_w, nv, nw)
+    f0 += e0
+    f1 += e1
+    k = 1.0 / (2.0 * math.pi)
+    f0, f1 = abs(f0) * k, abs(f1) * k
+    if arc_r == 0.0 and w >= crown_h - 1.0e-6:
+        return f0, f1, f0, f1
+    return f0, f1, abs(g0) * k, abs(g1) * k

@@ -185,7 +185,7 @@ class GLRenderer(Renderer):
         n_mat = self.offs.shape[0]
         seg_bytes = self._seg64.size * 4
         sizes = {"N_MAT": n_mat, "LP_VEC4": _vec4s(rc.LP_N), "LAMP_VEC4": _vec4s(self.lamp_mult.size),
-                 "PORTAL_VEC4": _vec4s(2 * len(self._lamp_count)), "TUN_VEC4": _vec4s(len(self._lamp_count)), "LEVEL_VEC4": _vec4s(2 * self.offs.size),
+                 "PORTAL_VEC4": _vec4s(4 * len(self._lamp_count)), "TUN_VEC4": _vec4s(len(self._lamp_count)), "LEVEL_VEC4": _vec4s(2 * self.offs.size),
                  "MAT_VEC4": _vec4s(2 * n_mat), "SEG_IN_UBO": int(_seg_fits_uniform_block(ctx, seg_bytes)),
                  "SEG_VEC4_TOTAL": self._seg64.size // 4}
         prog, blur = _programs(ctx, sizes)

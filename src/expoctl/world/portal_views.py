@@ -1,9 +1,13 @@
 """Small renders at each tunnel that set its lighting for a traversal's conditions (Renderer.set_conditions):
 
 - portal_luminances: the mean luminance seen through each portal opening, looking out — what the daylight term
-  (expoctl.world.daylight) multiplies with the opening's configuration factor. Estimate: a 48×48 pinhole view with a
-  90° field of view from the centre of the opening (centreline, half the tunnel height), looking out along the tunnel
-  axis; the plain pixel mean. A pixel's solid angle goes as cos³ of its angle from the axis, so the mean weights
+  (expoctl.world.daylight) multiplies with the opening's configuration factor — separately for rays rising and rays
+  descending: a tunnel surface point sees the opening's part above its own height with rising rays (the approach
+  walls, facades, sky) and the part below with descending ones (the road and ground outside); the road inside sees
+  only the first, the ceiling mostly the second, and they differ ~2–4× (a shaded approach road vs a bright sky).
+  Estimate: a 48×48 pinhole view with a 90° field of view from the centre of the opening (centreline, half the tunnel
+  height), looking out along the tunnel axis; the plain pixel mean of its upper and of its lower half (the horizon is
+  the image's middle row boundary). A pixel's solid angle goes as cos³ of its angle from the axis, so the mean weights
   the directions near the axis (all a deep point sees through the opening) most and covers the ±45° a point 5 m
   inside sees. It holds the real outside scene: sunlit/shaded road, the approach cutting, facades, sky.
 - access_luminance_l20: CIE 88's access-zone luminance L20 — the mean luminance in a cone of 20° apex (10° half
@@ -89,10 +93,11 @@ def _no_sun_disk(lp: np.ndarray) -> np.ndarray:
 
 
 def portal_luminances(renderer, lp: np.ndarray) -> np.ndarray:
-    """(n_tunnels, 2) mean luminance (cd/m²) seen out of each tunnel's start and end openings (module docstring)."""
+    """(n_tunnels, 2, 2) mean luminance (cd/m²) seen out of each tunnel's [start, end] opening, [looking up, looking
+    down] (module docstring)."""
     city = renderer.city
     tunnels = city.cfg["tunnels"]
-    out = np.zeros((max(1, len(tunnels)), 2))
+    out = np.zeros((max(1, len(tunnels)), 2, 2))
     lp = _no_sun_disk(lp)
     ones = np.ones((len(renderer._lamp_count), int(renderer._lamp_count.max())))  # lamps at nominal
     for ti, t in enumerate(tunnels):
@@ -103,7 +108,8 @@ def portal_luminances(renderer, lp: np.ndarray) -> np.ndarray:
             eye = p + up * (0.5 * h)
             y, _ = render_y(renderer, _look_at(eye, eye + sign * fwd), OPENING_VIEW_PX, OPENING_VIEW_FOV_DEG, lp,
                             ones, out)
-            out[ti, end] = float(y.mean())
+            half = OPENING_VIEW_PX // 2  # image rows above the principal point look up, the rest down
+            out[ti, end] = float(y[:half].mean()), float(y[half:].mean())
     return out
 
 

@@ -227,21 +227,21 @@ class Renderer:
         self._cache.clear()
 
     def _portal_lighting(self, conditions: Conditions, lp: np.ndarray):
-        """(portal_lum (n_tunnels, 2) cd/m², L20 per tunnel or None for the road-only L20) for these conditions,
+        """(portal_lum (n_tunnels, 2, 2) cd/m², L20 per tunnel or None for the road-only L20) for these conditions,
         from small renders at each tunnel (portal_views), cached per conditions: a traversal's frames share them."""
         light = self.city.cfg["lighting"]
         view_factor = light["daylight_model"] == "portal_view_factor"
         cone = light["l20_method"] == "cone_20deg"
         n_tun = len(self._lamp_count)
         if not self.city.cfg["tunnels"] or not (view_factor or cone):
-            return np.zeros((n_tun, 2)), None
+            return np.zeros((n_tun, 2, 2)), None
         key = (tuple(float(v) for v in conditions.sun_direction), float(conditions.sun_illuminance_lux),
                float(conditions.sky_zenith_cd_m2), bool(conditions.overcast), conditions.sky,
                repr(sorted(conditions.hdri.items())) if conditions.hdri else None)
         if key not in self._lighting_cache:
             if len(self._lighting_cache) > 16:
                 self._lighting_cache.clear()
-            lum = portal_views.portal_luminances(self, lp) if view_factor else np.zeros((n_tun, 2))
+            lum = portal_views.portal_luminances(self, lp) if view_factor else np.zeros((n_tun, 2, 2))
             l20 = (portal_views.access_luminance_l20(self, lp, lum, float(light["l20_stopping_distance_m"]))
                    if cone else None)
             self._lighting_cache[key] = (lum, l20)

@@ -121,7 +121,8 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
                 ox, oy, oz, dx, dy, dz, pix_rad, start_seg, start_inside, out, tex, cull):
     """Luminance of one ray into out[0:3]; returns (t, code, material).
     seg: a raycast.with_frame_terms table for the camera position (ox, oy, oz) and the sun direction (lp[0:3]).
-    portal_lum: (n_tunnels, 2) mean luminance (cd/m², Y) seen through each tunnel's start and end openings."""
+    portal_lum: (n_tunnels, 2, 2) mean luminance (cd/m², Y) seen out of each tunnel's start and end openings, looking
+    up and looking down (portal_views.portal_luminances)."""
     t, code, j, air, air_in, u, v, w, nu, nv, nw, mat = rc.trace(
         seg, start_seg, start_inside, ox, oy, oz, dx, dy, dz, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
         True, False)
@@ -194,10 +195,12 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
         tl = seg[j, rt.TUN_LEN]
         tid = int(seg[j, rt.TUN_ID])
         if lp[rc.LP_DAYLIGHT_MODEL] > 0.5:
-            # diffuse daylight through both openings (the sun's own patch is the shadow ray's, above)
-            f0, f1 = opening_factors_inline(seg[j, rt.HW], seg[j, rt.WALL_H], seg[j, rt.CROWN_H], seg[j, rt.ARC_C],
-                                            seg[j, rt.ARC_R], x, tl - x, v, w, nv, nw)
-            e_day += math.pi * (f0 * portal_lum[tid, 0] + f1 * portal_lum[tid, 1])
+            # diffuse daylight through both openings (the sun's own patch is the shadow ray's, above): the parts
+            # above and below the point's height each with the luminance seen out of the portal upward / downward
+            f0, f1, g0, g1 = opening_factors_inline(seg[j, rt.HW], seg[j, rt.WALL_H], seg[j, rt.CROWN_H],
+                                                    seg[j, rt.ARC_C], seg[j, rt.ARC_R], x, tl - x, v, w, nv, nw)
+            e_day += math.pi * ((f0 - g0) * portal_lum[tid, 0, 0] + g0 * portal_lum[tid, 0, 1]
+                                + (f1 - g1) * portal_lum[tid, 1, 0] + g1 * portal_lum[tid, 1, 1])
         else:
             tail = lp[rc.LP_TAIL_M]
             e_glob = lp[rc.LP_E_SKY] + e_sun * max(sun_z, 0.0)

@@ -6,7 +6,7 @@
 layout(std140, binding = 1) uniform Params {
     vec4 lp4[LP_VEC4];            // lighting vector lp
     vec4 lamp_mult4[LAMP_VEC4];   // (n_tunnels, lamp_stride) lamp multipliers
-    vec4 portal4[PORTAL_VEC4];    // (n_tunnels, 2) luminance seen out of each tunnel's start and end openings
+    vec4 portal4[PORTAL_VEC4];    // (n_tunnels, 2, 2) luminance seen out of each tunnel's start/end opening, up/down
     ivec4 lamp_count4[TUN_VEC4];
     ivec4 tex_level4[LEVEL_VEC4]; // texture level offsets (M×L, texel units), then sizes (M×L)
     vec4 mat4_[MAT_VEC4];         // albedo (N_MAT), then texture scales (N_MAT)
@@ -224,16 +224,24 @@ vec2 vf_edge(vec2 x, vec2 a, vec2 b, vec2 n) {
 }
 
 // configuration factors of a tunnel's two openings at axial distances x0, x1 from the surface point p = (v, w) with
-// normal n = (nv, nw) (daylight.opening_factors_inline: box rectangle, or walls + ARC_EDGES arch chords)
-vec2 opening_factors(int j, float x0, float x1, vec2 p, vec2 n) {
+// normal n = (nv, nw): xy = F of the whole openings, zw = G of their parts below the point's height (rays descending)
+// (daylight.opening_factors_inline: box rectangle, or walls + ARC_EDGES arch chords; the lower part clipped on the walk)
+vec4 opening_factors(int j, float x0, float x1, vec2 p, vec2 n) {
     vec2 x = max(vec2(x0, x1), vec2(1.0e-3));
     float hw = S(j, C_HW), wall_h = S(j, C_WALL_H), crown_h = S(j, C_CROWN_H);
     float arc_c = S(j, C_ARC_C), arc_r = S(j, C_ARC_R);
+    float w = p.y;
     float top = arc_r == 0.0 ? crown_h : wall_h;
-    vec2 q0 = vec2(-hw, 0.0) - p, q1 = vec2(hw, 0.0) - p;
-    vec2 acc = vf_edge(x, q0, q1, n);
+    bool box_ceiling = arc_r == 0.0 && w >= crown_h - 1.0e-6;
+    bool low = w > 1.0e-6 && !box_ceiling;
+    float wc = min(w, top);
+    vec2 bl = vec2(-hw, 0.0) - p, br = vec2(hw, 0.0) - p;
+    vec2 e = vf_edge(x, bl, br, n);
+    vec2 f = e, g = vec2(0.0);
+    if (low) g += e + vf_edge(x, br, vec2(br.x, wc - w), n);
     vec2 pv = vec2(hw, top) - p;
-    acc += vf_edge(x, q1, pv, n);
+    f += vf_edge(x, br, pv, n);
+    vec2 out_pt = vec2(br.x, wc - w);
     if (arc_r > 0.0) {
         float a0 = atan(wall_h - arc_c, hw);
         float step = (PI - 2.0 * a0) / float(ARC_EDGES);
@@ -244,16 +252,38 @@ vec2 opening_factors(int j, float x0, float x1, vec2 p, vec2 n) {
             sa = sa * cs + ca * sn;
             ca = c2;
             vec2 q = vec2(arc_r * ca, arc_c + arc_r * sa) - p;
-            acc += vf_edge(x, pv, q, n);
+            e = vf_edge(x, pv, q, n);
+            f += e;
+            if (low && w > wall_h) {
+                bool p_in = pv.y <= 0.0, q_in = q.y <= 0.0;
+                if (p_in && q_in) {
+                    g += e;
+                } else if (p_in || q_in) {
+                    vec2 ip = vec2(pv.x + (q.x - pv.x) * (0.0 - pv.y) / (q.y - pv.y), 0.0);
+                    if (p_in) {
+                        g += vf_edge(x, pv, ip, n);
+                        out_pt = ip;
+                    } else {
+                        g += vf_edge(x, out_pt, ip, n) + vf_edge(x, ip, q, n);
+                    }
+                }
+            }
             pv = q;
         }
     } else {
         vec2 q = vec2(-hw, crown_h) - p;
-        acc += vf_edge(x, pv, q, n);
+        f += vf_edge(x, pv, q, n);
         pv = q;
     }
-    acc += vf_edge(x, pv, q0, n);
-    return abs(acc) / (2.0 * PI);
+    if (low && w <= wall_h) {
+        g += vf_edge(x, vec2(br.x, 0.0), vec2(bl.x, 0.0), n) + vf_edge(x, vec2(bl.x, 0.0), bl, n);
+    } else if (low) {
+        g += vf_edge(x, pv, bl, n);
+    }
+    f += vf_edge(x, pv, bl, n);
+    f = abs(f) / (2.0 * PI);
+    g = box_ceiling ? f : abs(g) / (2.0 * PI);
+    return vec4(f, g);
 }
 
 int lamp_index(int tid, float x, float spacing) {
@@ -327,8 +357,9 @@ vec3 shade_pixel(vec3 o, vec3 d, float pix_rad, int start_seg, bool start_inside
         int tid = int(S(j, C_TUN_ID));
         if (LP(LP_DAYLIGHT_MODEL) > 0.5) {
             // diffuse daylight through both openings (the sun's own patch is the shadow ray's, above)
-            vec2 f = opening_factors(j, x, tl - x, hit.p.yz, nl.yz);
-            e_day += PI * (f.x * PORTAL_LUM(2 * tid) + f.y * PORTAL_LUM(2 * tid + 1));
+            vec4 f = opening_factors(j, x, tl - x, hit.p.yz, nl.yz);
+            e_day += PI * ((f.x - f.z) * PORTAL_LUM(4 * tid) + f.z * PORTAL_LUM(4 * tid + 1)
+                           + (f.y - f.w) * PORTAL_LUM(4 * tid + 2) + f.w * PORTAL_LUM(4 * tid + 3));
         } else {
             float tail = LP(LP_TAIL_M);
             float e_glob = LP(LP_E_SKY) + e_sun * max(sun.z, 0.0);
