@@ -112,8 +112,12 @@ def test_traversal_conditions_and_config_keys():
     assert np.array_equal(legacy.sun_direction, c.sun_direction)  # same draws: only the sky differs
     with pytest.raises(ConfigError, match="world.city.traversal.clear_sky"):
         load_city({"base": "train", "traversal": {"clear_sky": "cie_99"}})
-    with pytest.raises(ConfigError, match="world.city.traversal.clear_sky_horizon_cd_m2_per_100klux"):
-        load_city({"base": "train", "traversal": {"clear_sky_horizon_cd_m2_per_100klux": 0.0}})
+    for bad in (0.0, 26000.0):
+        with pytest.raises(ConfigError, match="world.city.traversal.clear_sky_horizon_cd_m2_per_100klux"):
+            load_city({"base": "train", "traversal": {"clear_sky_horizon_cd_m2_per_100klux": bad}})
+    # the cap keeps every sun elevation solvable: the worst case, type 13 with the sun near the zenith
+    sun = _sun(89.9)
+    assert cs.clear_sky_zenith_cd_m2("cie_13", sun, 100000.0, 25000.0) > 0.0
 
 
 def test_rendered_sky_pixels_follow_the_distribution():

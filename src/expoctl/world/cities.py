@@ -439,9 +439,10 @@ def validate_city(cfg: dict) -> None:
     if _get(cfg, "traversal.clear_sky") not in CLEAR_SKIES:
         raise ConfigError("world.city.traversal.clear_sky",
                           f"must be one of {', '.join(CLEAR_SKIES)}, got {_get(cfg, 'traversal.clear_sky')!r}")
-    # measured clear skies: a few to ~20 kcd/m² near the horizon per 100 klux; far beyond, no clear sky of the CIE
-    # types can have that horizon (clear_sky.clear_sky_zenith_cd_m2 has no solution)
-    _num(cfg, "traversal.clear_sky_horizon_cd_m2_per_100klux", lo=1000.0, hi=30000.0)
+    # measured clear skies: a few to ~20 kcd/m² near the horizon per 100 klux. Above 26.3 kcd/m² no sky of the CIE
+    # types can have that horizon for every sun elevation (clear_sky.clear_sky_zenith_cd_m2 needs r < band/E ratio,
+    # smallest 0.263 for type 13 with the sun at the zenith), so 25 kcd/m² is the cap
+    _num(cfg, "traversal.clear_sky_horizon_cd_m2_per_100klux", lo=1000.0, hi=25000.0)
     _num(cfg, "traversal.vibration_deg", lo=0.0, hi=5.0)
     _num(cfg, "traversal.camera_height_m", lo=0.2, hi=4.0)
     _num(cfg, "traversal.dynamic_before_s", lo=0.0)
