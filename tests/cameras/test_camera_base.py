@@ -185,3 +185,29 @@ def test_live_rig_retriggers_a_mispaired_frame_then_gives_up_naming_both_cameras
     with pytest.raises(CameraError, match=r"cameras A and B: the two frames of one trigger arrived -30\.0 ms apart"):
         list(drive_rig(rig, 2, Ramp(), Settings(0.0, 1000.0), range(0, 4), seed=0,
                        perturbation=PerturbationConfig(), limit=rig.limit))
+
+
+def test_controller_params_for_a_camera(tmp_path):
+    from expoctl.cameras.session import controller_params, make_camera_controller
+    from expoctl.errors import InputError
+
+    lim = Limits(Range(0.0, 12.0), Range(75.0, 20000.0))
+    agae = controller_params("agae", lim)
+    assert agae == {"exposure_lower_us": 75.0, "exposure_upper_us": 20000.0, "gain_lower_db": 0.0, "gain_upper_db": 12.0}
+    for name in ("agae", "fixed"):  # the library's controllers accept what is built for them
+        ctrl = make_camera_controller(name, controller_params(name, lim))
+        ctrl.reset(Settings(0.0, 1000.0))
+        for _ in range(3):  # AG+AE meters the frame before the newest one: its first command holds
+            nxt = ctrl.update(np.zeros((8, 8, 3), np.uint8), Settings(0.0, 1000.0))  # black: brighten
+        assert nxt.exposure_us > 1000.0 and nxt.gain_db <= 12.0 and nxt.exposure_us <= 20000.0
+    with pytest.raises(InputError, match="--model PATH is needed with --controller learned"):
+        controller_params("learned", lim)
+    with pytest.raises(InputError, match="--model is only for --controller learned, not agae"):
+        controller_params("agae", lim, model="x.pt")
+    with pytest.raises(InputError, match="model checkpoint not found"):
+        controller_params("learned", lim, model=str(tmp_path / "missing.pt"))
+    (tmp_path / "m.pt").write_bytes(b"")
+    assert controller_params("learned", lim, model=str(tmp_path / "m.pt"))["backend"] == "torch"  # no .onnx beside it
+    (tmp_path / "m.onnx").write_bytes(b"")
+    assert controller_params("learned", lim, model=str(tmp_path / "m.pt")) == {
+        "checkpoint": str(tmp_path / "m.pt"), "backend": "onnx", "num_threads": 1}

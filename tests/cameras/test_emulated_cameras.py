@@ -105,13 +105,15 @@ def test_record_validates_ingests_and_follows_the_shared_protocol(emulators, tmp
     raw = tmp_path / "raw"
     out = raw / "train" / "rig_000"
     res = emulators.expoctl("record", "--camera1", cam_a, "--camera2", "127.0.0.2", "--frames", "24", "--warmup", "6",
-                            "--seed", "7", "--baseline-m", "0.12", "--out", str(out), *camera_args())
+                            "--seed", "7", "--baseline-m", "0.12", "--intrinsics", "500", "500", "320", "240",
+                            "--out", str(out), *camera_args())
     assert res.returncode == 0, res.stderr
     assert "24 frame pairs (completed)" in res.stdout
     ok = _validate(out)
     assert ok.returncode == 0 and "24 frame pairs, 640x480" in ok.stdout, ok.stderr
     meta = yaml.safe_load((out / "sequence.yaml").read_text())
     assert meta["rig"]["baseline_m"] == 0.12 and meta["pairing"]["tolerance_ms"] == 10.0
+    assert meta["rig"]["intrinsics"] == {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0}
     assert meta["pairing"]["max_offset_ms"] <= 10.0 and meta["camera2"]["serial"] == cam_b
     frames = _frames(out)
     _assert_device_values(frames)

@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=30,
                         help="frames camera 1's controller runs before recording starts (default 30)")
     parser.add_argument("--baseline-m", type=float, required=True, help="distance between the two cameras, metres")
+    parser.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                        help="camera 1's pinhole intrinsics in pixels at the recorded resolution (sequence.yaml "
+                             "rig.intrinsics; evaluation's VO needs them, training does not)")
     parser.add_argument("--seed", type=int, default=0, help="seed of camera 2's perturbation draws (default 0)")
     parser.add_argument("--pair-tolerance-ms", type=float, default=10.0,
                         help="largest receive-time difference of a frame pair (default 10 ms; module doc of "
@@ -48,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         problems.append(f"--baseline-m must be a positive distance in metres, got {args.baseline_m}")
     if args.warmup < 0:
         problems.append(f"--warmup must be >= 0, got {args.warmup}")
+    if args.intrinsics is not None and not (args.intrinsics[0] > 0 and args.intrinsics[1] > 0):
+        problems.append(f"--intrinsics focal lengths FX FY must be positive, got {args.intrinsics[:2]}")
     if not args.pair_tolerance_ms > 0:
         problems.append(f"--pair-tolerance-ms must be positive, got {args.pair_tolerance_ms}")
     if problems:
@@ -62,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
             res = session.record((cam1, cam2), (lim1, lim2), args.reference, params, out, n_frames=args.frames,
                                  baseline_m=args.baseline_m, seed=args.seed, warmup_frames=args.warmup,
                                  pair_tolerance_ms=args.pair_tolerance_ms, timeout_s=args.timeout_s,
+                                 intrinsics=None if args.intrinsics is None else
+                                 dict(zip(("fx", "fy", "cx", "cy"), args.intrinsics)),
                                  report=lambda line: print(line, flush=True))
         except KeyboardInterrupt:
             print("expoctl record: aborted by a second interrupt; nothing was written", file=sys.stderr)

@@ -181,7 +181,12 @@ def _run(rig: LiveRig, loop: Iterator[RigFrame], writer: BackgroundWriter, n_fra
                     break
         except CameraError as exc:
             stopped, error = "camera failed", exc
-        except KeyboardInterrupt:
+        except ValueError as exc:  # the loop's own check: a controller returned non-finite settings
+            stopped, error = "controller failed", CameraError(f"{exc}.")
+        except OSError as exc:  # the recording itself cannot be written (disk full, permissions)
+            writer.abort()
+            raise InputError(f"{writer.writer.seq_dir}: writing the recording failed ({exc}); nothing was written") from None
+        except BaseException:  # KeyboardInterrupt (a second Ctrl-C) or a bug: leave nothing half-written
             writer.abort()
             raise
         finally:
@@ -199,14 +204,24 @@ def _finish(writer: BackgroundWriter, out: Path, written: int, stopped: str, err
         if error is not None:
             raise CameraError(f"{error} Nothing was recorded, so nothing was written.")
         return None
-    writer.meta["stopped"] = stopped if error is None else f"camera failed: {error}"
-    path = writer.close()
+    writer.meta["stopped"] = stopped if error is None else f"{stopped}: {error}"
+    try:
+        path = writer.close()
+    except OSError as exc:
+        raise InputError(f"{out}: writing the recording failed ({exc}); nothing was written") from None
     if writer.meta.get("cameras") == 1 and (path / "cam2").is_dir() and not any((path / "cam2").iterdir()):
         (path / "cam2").rmdir()  # the writer prepares both camera folders; a one-camera recording has one
     if error is not None:
         raise CameraError(f"{error} The {written} frame(s) recorded before it are saved in {path} "
                           "(a complete sequence: expoctl validate accepts it).")
     return path
+
+
+def _open_writer(out: Path, meta: dict) -> BackgroundWriter:
+    try:
+        return BackgroundWriter(SequenceWriter(out, meta))
+    except OSError as exc:
+        raise InputError(f"{out}: cannot create the recording there ({exc})") from None
 
 
 def _rate_hz(arrivals: list[float]) -> float | None:
@@ -247,8 +262,12 @@ def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, ou
             "controller": {"name": controller_name, "params": params},
             "initial_settings": {"gain_db": start.gain_db, "exposure_us": start.exposure_us},
             "camera1": camera.info.to_dict(), "limits": {"camera1": _limits_dict(limits)}}
-    writer = BackgroundWriter(SequenceWriter(out, meta))
-    rig.start()
+    writer = _open_writer(out, meta)
+    try:
+        rig.start()
+    except BaseException:
+        writer.abort()
+        raise
     loop = drive_rig(rig, 1, controller, start, range(0, n_frames), seed=0, limit=rig.limit)
     report(f"{'frame':>6} {'gain_dB':>8} {'exposure_us':>11} {'mean':>6} {'controller_ms':>13} {'delay_frames':>12}")
 
@@ -279,7 +298,8 @@ def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, ou
 def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], reference: str, params: dict, out: Path, *,
            n_frames: int | None, baseline_m: float, seed: int = 0, warmup_frames: int = 30,
            perturbation: PerturbationConfig = PerturbationConfig(), pair_tolerance_ms: float = 10.0,
-           timeout_s: float = 2.0, report: Callable[[str], None] = print) -> SessionResult:
+           timeout_s: float = 2.0, intrinsics: dict | None = None,
+           report: Callable[[str], None] = print) -> SessionResult:
     """The paper's dual-camera data collection (module doc): camera 1 under `reference`, camera 2 perturbed from
     camera 1's settings frame by frame (`expoctl.rig.protocol`), both software-triggered together."""
     if reference not in REFERENCE_NAMES:
@@ -293,7 +313,8 @@ def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], refere
                   pair_tolerance_ms=pair_tolerance_ms)
     start = limits[0].clamp(cameras[0].read_settings())
     meta = {"source": "rig",
-            "rig": {"baseline_m": float(baseline_m), "fps": 1.0, "resolution": [int(w1), int(h1)]},
+            "rig": {"baseline_m": float(baseline_m), "fps": 1.0, "resolution": [int(w1), int(h1)],
+                    **({"intrinsics": dict(intrinsics)} if intrinsics else {})},
             "reference_controller": {"name": reference, "params": params},
             "seed": int(seed), "perturbation": perturbation.to_dict(), "warmup_frames": int(warmup_frames),
             "initial_settings": {"gain_db": start.gain_db, "exposure_us": start.exposure_us},
@@ -302,8 +323,12 @@ def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], refere
             "pairing": {"method": "software trigger, both cameras per frame",
                         "timestamp": "host receive time (Aravis system timestamp), one clock for both cameras",
                         "tolerance_ms": float(pair_tolerance_ms)}}
-    writer = BackgroundWriter(SequenceWriter(out, meta))
-    rig.start()
+    writer = _open_writer(out, meta)
+    try:
+        rig.start()
+    except BaseException:
+        writer.abort()
+        raise
     n = UNTIL_STOPPED if n_frames is None else int(n_frames)
     loop = drive_rig(rig, 2, controller, start, range(warmup_frames, warmup_frames + n), seed,
                      perturbation=perturbation, warmup_frames=warmup_frames, limit=rig.limit)
