@@ -56,9 +56,15 @@ class Emulators:
         self.stop(i)
         self.procs[i] = subprocess.Popen(["ip", "netns", "exec", self.ns, EMULATOR, "-i", ADDRESSES[i],
                                           "-s", self.serials[i]], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(0.3)
-        if self.procs[i].poll() is not None:
-            raise RuntimeError(f"emulator {self.serials[i]} exited at once (rc {self.procs[i].returncode})")
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:  # ready once it listens for GVCP on its address (a loaded CI is slow)
+            if self.procs[i].poll() is not None:
+                raise RuntimeError(f"emulator {self.serials[i]} exited at once (rc {self.procs[i].returncode})")
+            ss = subprocess.run(["ip", "netns", "exec", self.ns, "ss", "-Hlun"], capture_output=True, text=True)
+            if f"{ADDRESSES[i]}:3956" in ss.stdout:
+                return
+            time.sleep(0.1)
+        raise RuntimeError(f"emulator {self.serials[i]} not listening on {ADDRESSES[i]}:3956 after 20 s")
 
     def stop(self, i: int) -> None:
         p = self.procs[i]
