@@ -215,3 +215,22 @@ def test_storage_buffer_fallback_for_long_routes(scene, monkeypatch):
     assert not r._gl["seg_in_ubo"]
     for key in ("luminance", "depth", "code", "material"):
         np.testing.assert_array_equal(ssbo[key], ubo[key], err_msg=key)
+
+
+@pytest.mark.parametrize("variant", ["legacy", "cie_13"])
+def test_lighting_variants_match_numba(gl_ok, variant):
+    """The lighting before issue 23 (overcast profile under sun, exponential daylight tail, road-only L20) and the
+    polluted clear sky (CIE type 13) render alike in both backends (same bounds as above), inside and outside."""
+    over = ({"traversal": {"clear_sky": "overcast_profile"},
+             "lighting": {"daylight_model": "exponential_tail", "l20_method": "road_only"}} if variant == "legacy"
+            else {"traversal": {"clear_sky": "cie_13"}})
+    city = load_city(dict({"base": "train"}, **over))
+    cond = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if not t.conditions.overcast
+                ).conditions
+    ref_r = Renderer(city, W, H, 70.0, conditions=cond)
+    gl_r = gl_renderer.GLRenderer(city, W, H, 70.0, conditions=cond)
+    start = float(city.cfg["tunnels"][0]["start_m"])
+    for s, m in ((250.0, UP), (start + 6.0, np.eye(3)), (start + 40.0, np.eye(3))):
+        pose = city.pose_at_s(s, 0.0)
+        pose[:3, :3] = pose[:3, :3] @ m
+        _compare(ref_r.render_full(pose, glare=False), gl_r.render_full(pose, glare=False))

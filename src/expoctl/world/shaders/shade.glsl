@@ -89,6 +89,29 @@ float dash_cover(float x, float half_, float period, float on, float phase) {
     return (dash_integral(x + half_ - phase, period, on) - dash_integral(x - half_ - phase, period, on)) / (2.0 * half_);
 }
 
+// atan(t) for t >= 0 to float32 rounding (llvmpipe's atan is off by ~1.5e-5 relative, which the daylight sum would
+// amplify): octant reduction to |u| <= tan(π/8), then the odd Taylor series (u² <= 0.172: 12 terms reach 1e-9)
+float atan_pos(float t) {
+    bool inv = t > 1.0;
+    float u = inv ? 1.0 / t : t;
+    float off = 0.0;
+    if (u > 0.41421356) { u = (u - 1.0) / (u + 1.0); off = 0.25 * PI; }
+    float z = u * u;
+    float s = 1.0 / 23.0;
+    for (int k = 10; k >= 0; --k) s = 1.0 / float(2 * k + 1) - z * s;
+    float r = off + u * s;
+    return inv ? 0.5 * PI - r : r;
+}
+
+// atan(t) − t for t >= 0 without cancellation for small t: −t³/3 + t⁵/5 − … (t² < 0.25: 14 terms reach 1e-9)
+float atan_minus_t(float t) {
+    if (t >= 0.5) return atan_pos(t) - t;
+    float z = t * t;
+    float q = 1.0 / 29.0;  // q = 1/3 − z/5 + z²/7 − … (Horner, 14 terms)
+    for (int k = 13; k >= 1; --k) q = 1.0 / float(2 * k + 1) - z * q;
+    return -t * z * q;
+}
+
 vec3 sky(vec3 d) {
     if (LP(LP_HDRI) > 0.5) {
         ivec2 sz = textureSize(hdri, 0);
@@ -118,7 +141,11 @@ vec3 sky(vec3 d) {
         float phi = 1.0;
         if (d.z > 0.0) phi = 1.0 + LP(LP_SKY_ABCDE) * exp(LP(LP_SKY_ABCDE + 1) / d.z);
         float cc = clamp(cs, -1.0, 1.0);
-        float chi = acos(cc);
+        // χ = 2·atan(|d − s| / |d + s|): well conditioned everywhere, and atan_pos is accurate to float32 rounding
+        // (llvmpipe's acos, like its atan, is off by ~1e-5, which the steep indicatrix of type 13 amplified ~10×)
+        vec3 sun_d = vec3(LP(0), LP(1), LP(2));
+        float ap = length(d + sun_d);
+        float chi = ap > 1.0e-30 ? 2.0 * atan_pos(length(d - sun_d) / ap) : PI;
         float f = 1.0 + LP(LP_SKY_ABCDE + 2) * (exp(LP(LP_SKY_ABCDE + 3) * chi) - exp(LP(LP_SKY_ABCDE + 3) * 0.5 * PI))
                   + LP(LP_SKY_ABCDE + 4) * cc * cc;
         lum = LP(LP_LZ) * f * phi * LP(LP_SKY_NORM);
@@ -177,29 +204,6 @@ float road_marking(float s, float v, float half_v, float half_s) {
         if (across > 0.0) cov += across * dash_cover(s, half_s, 12.0, 3.0, 0.0);
     }
     return min(cov, 1.0);
-}
-
-// atan(t) for t >= 0 to float32 rounding (llvmpipe's atan is off by ~1.5e-5 relative, which the daylight sum would
-// amplify): octant reduction to |u| <= tan(π/8), then the odd Taylor series (u² <= 0.172: 12 terms reach 1e-9)
-float atan_pos(float t) {
-    bool inv = t > 1.0;
-    float u = inv ? 1.0 / t : t;
-    float off = 0.0;
-    if (u > 0.41421356) { u = (u - 1.0) / (u + 1.0); off = 0.25 * PI; }
-    float z = u * u;
-    float s = 1.0 / 23.0;
-    for (int k = 10; k >= 0; --k) s = 1.0 / float(2 * k + 1) - z * s;
-    float r = off + u * s;
-    return inv ? 0.5 * PI - r : r;
-}
-
-// atan(t) − t for t >= 0 without cancellation for small t: −t³/3 + t⁵/5 − … (t² < 0.25: 14 terms reach 1e-9)
-float atan_minus_t(float t) {
-    if (t >= 0.5) return atan_pos(t) - t;
-    float z = t * t;
-    float q = 1.0 / 29.0;  // q = 1/3 − z/5 + z²/7 − … (Horner, 14 terms)
-    for (int k = 13; k >= 1; --k) q = 1.0 / float(2 * k + 1) - z * q;
-    return -t * z * q;
 }
 
 // one edge of Lambert's polygon formula minus m/x, for the two portals at axial distances x.x and x.y, in the
