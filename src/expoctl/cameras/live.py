@@ -3,8 +3,10 @@
 Per call `capture(t, settings)`:
 1. each camera gets its command for frame t (written only when it changed: a write is a round trip to the device);
 2. free-running (one camera, `drive`): take the newest frame the camera has sent, discarding older queued ones so the
-   controller always acts on the latest image; triggered (`record`): software-trigger every camera, then take one
-   frame from each — both frames of a pair come from the same trigger;
+   controller always acts on the latest image (and, with register read-back, every frame queued before a new
+   command was written: read back after the write, it would be labelled with settings it was not exposed with);
+   triggered (`record`): software-trigger every camera, then take one frame from each — both frames of a pair come
+   from the same trigger;
 3. pairing check (two cameras): the two frames' host receive times must lie within `pair_tolerance_ms`. Frames of
    consecutive triggers are at least one loop period apart (≥ 40 ms at 25 Hz), so a default tolerance of 10 ms can
    never pair frames of different triggers; it catches a camera that missed a trigger or delivered a stale frame.
@@ -108,7 +110,10 @@ class LiveRig:
     def capture(self, frame_index: int, settings: Sequence[Settings]) -> RigFrame:
         n = len(settings)
         for c in range(n):
-            self._command(c, settings[c])
+            if self._command(c, settings[c]) and not self.triggered and self.cameras[c].info.settings_source == "readback":
+                # frames already received were exposed before this write, yet reading the registers after them
+                # would report the new settings: drop them (with chunk data every frame says what it had)
+                self.stats.discarded_stale[c] += self.cameras[c].discard_queued()
         for _attempt in range(self.max_mispaired_in_row):
             frames = self._grab(n)
             if n == 1 or abs(frames[0].timestamp_ns - frames[1].timestamp_ns) <= self.pair_tolerance_ns:
@@ -133,9 +138,10 @@ class LiveRig:
 
     # --- internals ---------------------------------------------------------------------------------------------------
 
-    def _command(self, c: int, wanted: Settings) -> None:
-        if wanted == self._wanted[c]:  # exactly what the device was last asked for: skip the round trip
-            return
+    def _command(self, c: int, wanted: Settings) -> bool:
+        """Write `wanted` to camera c unless it is what the device was last asked for; True if written."""
+        if wanted == self._wanted[c]:  # skip the round trip
+            return False
         previous = self._accepted[c]
         accepted = self.cameras[c].apply(wanted)
         self._wanted[c] = wanted
@@ -144,6 +150,7 @@ class LiveRig:
         if self._last_frame_no[c] is not None:
             self.delay[c].commanded(from_frame, accepted, previous)
         self._accepted[c] = accepted
+        return True
 
     def _grab(self, n: int) -> list[Frame]:
         if self.triggered:
