@@ -211,3 +211,35 @@ def test_controller_params_for_a_camera(tmp_path):
     (tmp_path / "m.onnx").write_bytes(b"")
     assert controller_params("learned", lim, model=str(tmp_path / "m.pt")) == {
         "checkpoint": str(tmp_path / "m.pt"), "backend": "onnx", "num_threads": 1}
+
+
+def test_background_writer_keeps_order_and_reports_a_write_error(tmp_path):
+    from expoctl.cameras.session import BackgroundWriter
+    from expoctl.rig.raw import SequenceWriter
+
+    img = np.zeros((4, 6, 3), np.uint8)
+    w = BackgroundWriter(SequenceWriter(tmp_path / "seq", {"source": "rig"}), max_queued=2)
+    for fid in range(5):
+        w.add_frame(fid, 1, 1000 + fid, 0.0, 1000.0, img + fid)
+    path = w.close()
+    lines = (path / "frames.csv").read_text().splitlines()
+    assert [l.split(",")[0] for l in lines[1:]] == ["0", "1", "2", "3", "4"]
+
+    class Failing:
+        meta: dict = {}
+
+        def __init__(self):
+            self.aborted = False
+
+        def add_frame(self, *args):
+            raise OSError(28, "No space left on device")
+
+        def abort(self):
+            self.aborted = True
+
+    inner = Failing()
+    w = BackgroundWriter(inner)
+    w.add_frame(0, 1, 0, 0.0, 1000.0, img)
+    with pytest.raises(OSError, match="No space left"):
+        w.close()
+    assert inner.aborted

@@ -137,10 +137,12 @@ def test_record_validates_ingests_and_follows_the_shared_protocol(emulators, tmp
     assert np.load(tmp_path / "images" / "rig_000.npy", mmap_mode="r").shape == (24, 2, 24, 32, 3)
 
 
-def test_ctrl_c_stops_recording_with_a_valid_sequence(emulators, tmp_path):
+def test_ctrl_c_stops_recording_with_a_valid_sequence(emulators, tmp_path, tiny_model):
+    """Also the paper's second iteration: the network as camera 1's reference."""
     cam_a, cam_b = emulators.ids()
     out = tmp_path / "interrupted"
     proc = emulators.popen_expoctl("record", "--camera1", cam_a, "--camera2", cam_b, "--warmup", "2",
+                                   "--reference", "learned", "--model", str(tiny_model),
                                    "--baseline-m", "0.1", "--out", str(out), *camera_args())
     _wait_for_line(proc, "frame 25:")
     proc.send_signal(signal.SIGINT)  # `ip netns exec` passes it on to expoctl
@@ -149,7 +151,8 @@ def test_ctrl_c_stops_recording_with_a_valid_sequence(emulators, tmp_path):
     assert "(interrupted)" in stdout and "Traceback" not in stderr
     ok = _validate(out)
     assert ok.returncode == 0, ok.stderr
-    assert yaml.safe_load((out / "sequence.yaml").read_text())["stopped"] == "interrupted"
+    meta = yaml.safe_load((out / "sequence.yaml").read_text())
+    assert meta["stopped"] == "interrupted" and meta["reference_controller"]["name"] == "learned"
     assert len(_frames(out)) >= 2 * 26
 
 
