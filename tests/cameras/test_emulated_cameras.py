@@ -16,6 +16,7 @@ import yaml
 from emulated import GAIN_DB_PER_RAW, camera_args
 
 from expoctl.controllers.base import Settings
+from expoctl.errors import InputError
 from expoctl.ingest import IngestConfig, ingest
 from expoctl.rig.protocol import PerturbationConfig, perturb
 
@@ -85,6 +86,9 @@ def test_drive_agae_converges_on_the_emulators_brightness(emulators, tmp_path):
     assert meta["cameras"] == 1 and meta["drive"]["frames"] == 60 and meta["camera1"]["settings_source"] == "readback"
     assert meta["camera1"]["features"]["gain"] == "GainRaw" and meta["camera1"]["features"]["exposure"] == "ExposureTimeAbs"
     assert not (out / "cam2").exists()
+    with pytest.raises(InputError, match="a one-camera sequence .* training needs two cameras"):
+        ingest([out.parent], tmp_path / "frames.parquet", tmp_path / "images", IngestConfig(), project_root=tmp_path)
+    assert not (tmp_path / "frames.parquet").exists()
 
 
 def test_drive_learned_network_through_onnx(emulators, tmp_path, tiny_model):
