@@ -199,7 +199,10 @@ def test_unknown_camera_and_out_of_range_limits_are_named(emulators, tmp_path):
     res = emulators.expoctl("drive", "--camera", cam_a, "--controller", "agae", "--frames", "5",
                             "--out", str(tmp_path / "z"), "--width", "640")  # no --gain-db-per-raw
     assert res.returncode == 2 and "GainRaw" in res.stderr and "--gain-db-per-raw" in res.stderr
-    assert not any(p.exists() for p in (tmp_path / "x", tmp_path / "y", tmp_path / "z"))
+    res = emulators.expoctl("record", "--camera1", cam_a, "--camera2", "127.0.0.1", "--baseline-m", "0.1",
+                            "--out", str(tmp_path / "w"), *camera_args())
+    assert res.returncode == 2 and f"{cam_a} and 127.0.0.1 are the same camera" in res.stderr
+    assert not any(p.exists() for p in (tmp_path / "x", tmp_path / "y", tmp_path / "z", tmp_path / "w"))
 
 
 def test_existing_output_is_never_replaced(tmp_path):

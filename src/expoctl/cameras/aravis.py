@@ -69,10 +69,10 @@ def list_cameras() -> list[dict[str, str]]:
     return out
 
 
-def resolve_camera_id(camera_id: str) -> str:
+def resolve_camera_id(camera_id: str, found: list[dict[str, str]] | None = None) -> str:
     """The Aravis device id of the camera named by `camera_id` (its device id, serial number, address or physical
-    id); CameraError listing the cameras found if none matches."""
-    found = list_cameras()
+    id) among `found` (default: discover now); CameraError listing the cameras found if none matches."""
+    found = list_cameras() if found is None else found
     for cam in found:
         if camera_id in (cam["id"], cam["serial"], cam["address"], cam["physical_id"]):
             return cam["id"]

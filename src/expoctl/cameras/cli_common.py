@@ -51,6 +51,21 @@ def open_cameras(stack: ExitStack, ids: list[str], args: argparse.Namespace) -> 
     """Open every camera (closed by `stack`) and work out its usable limits; every problem found is reported."""
     user = UserLimits(args.gain_min_db, args.gain_max_db, args.exposure_min_us, args.exposure_max_us)
     out, problems = [], []
+    if len(ids) > 1 and args.backend == "aravis":  # one camera named twice (serial and address, say)
+        from expoctl.cameras.aravis import list_cameras, resolve_camera_id
+
+        found = list_cameras()
+        resolved = {}
+        for cid in ids:
+            try:
+                resolved[cid] = resolve_camera_id(cid, found)
+            except CameraError as exc:
+                problems.append(str(exc))
+        if problems:
+            raise CameraError("\n".join(problems))
+        if len(set(resolved.values())) < len(ids):
+            raise CameraError(f"{' and '.join(ids)} are the same camera ({next(iter(resolved.values()))}); "
+                              "record needs two cameras")
     for cid in ids:
         try:
             cam = stack.enter_context(open_camera(cid, args.backend, width=args.width, height=args.height,
