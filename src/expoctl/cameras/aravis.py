@@ -329,14 +329,22 @@ class AravisCamera(Camera):
 
     def _frame_from(self, buf) -> Frame:
         try:
-            image = to_rgb8(buf.get_data(), buf.get_image_width(), buf.get_image_height(), self.info.pixel_format)
+            # the image part only: with chunk data the payload also carries the chunks after it
+            image = to_rgb8(buf.get_image_data(), buf.get_image_width(), buf.get_image_height(), self.info.pixel_format)
         except ValueError as exc:
             raise CameraError(f"camera {self._name}: {exc}") from None
+        settings = None
+        if self._chunk_parser is not None:
+            try:
+                settings, source = self._chunk_settings(buf), "chunk"
+            except self._GLib.Error:
+                # chunks enabled but not in the frames (some firmware needs a restart of the stream): read back from
+                # now on, and say so in what the recording records about this camera
+                self._chunk_parser = None
+                self.info.settings_source = "readback"
+                self.info.features["chunk_data"] = "enabled, but frames carried none: read back instead"
         try:
-            if self._chunk_parser is not None:
-                settings = self._chunk_settings(buf)
-                source = "chunk"
-            else:
+            if settings is None:
                 settings, source = self._read_settings(), "readback"
         except self._GLib.Error as exc:
             self._lost = True

@@ -288,6 +288,7 @@ def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, ou
     if rate is not None:
         writer.meta["rig"]["fps"] = round(rate, 3)  # what the sequence really has, not the camera's nominal rate
     writer.meta["drive"] = summary
+    writer.meta["camera1"] = camera.info.to_dict()  # the settings source may have changed during the run
     path = _finish(writer, out, written, stopped, error)
     return SessionResult(path, written, stopped, summary)
 
@@ -354,5 +355,6 @@ def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], refere
         writer.meta["rig"]["fps"] = round(rate, 3)
     writer.meta["pairing"]["max_offset_ms"] = summary["pair_offset_ms"]["max"]
     writer.meta["record"] = summary
+    writer.meta["camera1"], writer.meta["camera2"] = (c.info.to_dict() for c in cameras)
     path = _finish(writer, out, written, stopped, error)
     return SessionResult(path, written, stopped, summary)
