@@ -14,8 +14,9 @@ from expoctl.errors import InputError
 def add_camera_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("camera (applies to every camera of the run)")
     g.add_argument("--backend", choices=BACKENDS, default="aravis", help="camera driver (default aravis)")
-    g.add_argument("--width", type=int, help="image width in pixels (default: the camera's current)")
-    g.add_argument("--height", type=int, help="image height in pixels (default: the camera's current)")
+    g.add_argument("--width", type=int, help="image width in pixels, a region from the sensor's top-left corner "
+                                             "(default: the camera's current region)")
+    g.add_argument("--height", type=int, help="image height in pixels (default: the camera's current region)")
     g.add_argument("--pixel-format", help="GenICam pixel format: Mono8, RGB8, BGR8 or Bayer*8 (default: the camera's "
                                           "current if 8-bit, else a colour one)")
     g.add_argument("--fps", type=float, help="camera frame rate in Hz (default: the camera's current)")
