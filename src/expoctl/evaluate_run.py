@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
 from expoctl.rig.closed_loop import run_closed_loop
 from expoctl.vo_map import MapTracker, MapTrackerConfig
@@ -40,24 +40,6 @@ class WindowFrames:
     portal_dt_s: Sequence[float]  # per frame: signed time to the nearest portal crossing (s; NaN if none)
     portal_kind: Sequence[str]  # per frame: entry | exit | "" (the nearest portal)
     gt_poses: np.ndarray | None  # (n, 4, 4) camera-1 T_wc per frame (for VO trajectory error)
-
-
-class TimedController(Controller):
-    """Delegates to a controller and records how long each `update` takes (ms)."""
-
-    def __init__(self, inner: Controller):
-        self.inner = inner
-        self.name = inner.name
-        self.update_ms: list[float] = []
-
-    def reset(self, initial: Settings) -> None:
-        self.inner.reset(initial)
-
-    def update(self, image: np.ndarray, applied: Settings) -> Settings:
-        t0 = time.perf_counter()
-        out = self.inner.update(image, applied)
-        self.update_ms.append((time.perf_counter() - t0) * 1e3)
-        return out
 
 
 def pair_seed(sequence: str, frame: int, variant: str) -> int:

@@ -26,9 +26,8 @@ import numpy as np
 
 from expoctl.cameras.base import Camera, CameraError, Limits
 from expoctl.cameras.live import LiveRig
-from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.errors import InputError
-from expoctl.evaluate_run import TimedController
 from expoctl.rig.closed_loop import RigFrame, drive_rig
 from expoctl.rig.protocol import PerturbationConfig
 from expoctl.rig.raw import SequenceWriter

@@ -8,6 +8,7 @@ commands next; the camera applies them at frame t+1 (one frame of actuation late
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -41,3 +42,22 @@ class Controller(ABC):
     @abstractmethod
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
         """Take frame t (H×W×3 uint8 RGB) and the settings it was captured with; return the settings for t+1."""
+
+
+class TimedController(Controller):
+    """Delegates to a controller and records how long each `update` takes (ms): evaluation's per-frame timing and
+    the live camera loop's (`expoctl drive`)."""
+
+    def __init__(self, inner: Controller):
+        self.inner = inner
+        self.name = inner.name
+        self.update_ms: list[float] = []
+
+    def reset(self, initial: Settings) -> None:
+        self.inner.reset(initial)
+
+    def update(self, image: np.ndarray, applied: Settings) -> Settings:
+        t0 = time.perf_counter()
+        out = self.inner.update(image, applied)
+        self.update_ms.append((time.perf_counter() - t0) * 1e3)
+        return out
