@@ -76,8 +76,10 @@ def test_drive_agae_converges_on_the_emulators_brightness(emulators, tmp_path):
     assert (frames["camera"] == 1).all() and len(frames) == 60
     _assert_device_values(frames)
     means = _grey_means(out, frames)
-    _assert_images_match_settings(frames, means, share=0.9)
-    assert means[0] < 5.0  # 1 ms is black on the emulator
+    # free-running, a frame already in flight when a command is written can carry the old settings; were the rows
+    # commands instead of what the camera reports, every changed frame (~25 of the first 30) would miss
+    _assert_images_match_settings(frames, means, share=0.8)
+    assert means[:5].min() < 5.0  # 1 ms is black on the emulator (the very first frame may predate the command)
     last = means[-15:]
     assert 60.0 < last.mean() < 180.0 and np.ptp(last) < 3.0, means  # settled, neither dark nor clipped
     exposure = frames["exposure_us"].to_numpy()
