@@ -7,10 +7,11 @@ P, all on the visible side of P's tangent plane) F has an exact closed form — 
 applied to the projected solid angle (Lambert's polygon formula; Howell's catalogue of configuration factors derives its
 plane-element-to-rectangle cases, parallel and perpendicular, from it):
     F = |Σ_k θ_k · n·(r_k × r_k+1) / |r_k × r_k+1|| / (2π),   θ_k = angle between r_k and r_k+1.
-The opening is the tunnel cross-section (box: the width × height rectangle; arch: the true shape — vertical walls to the
-springing line, then the circular arch as ARC_EDGES chords, an inscribed polygon whose area is 0.7 % short of the
-test city's arch; its F is 0.2–1.3 % short for road points 2–20 m from the portal, tests/world/test_daylight.py),
-in the plane through the portal perpendicular to the tunnel axis at distance X along the axis from P. The
+The opening is the tunnel cross-section (box: the width × height rectangle; arch: its own profile, not an equivalent
+rectangle — vertical walls to the springing line, then the circular arch as ARC_EDGES chords, an inscribed polygon
+whose area is 0.7 % short of the test city's arch, so its F is 0.2–1.3 % short for road points 2–20 m from the
+portal, tests/world/test_daylight.py), in the plane through the portal perpendicular to the tunnel axis at distance X
+along the axis from P. The
 cross-section is convex and P lies on its boundary with an inward normal, so no part of the opening is behind P's tangent
 plane and the formula needs no clipping.
 
@@ -25,8 +26,8 @@ ground outside, the rest rise; E = π·(L_up·(F − G) + L_down·G), L_up / L_d
 Assumptions (documented limits): the tunnel is straight between P and the portal (X = distance along the tunnel; in a
 curved tunnel the bend hides part of the opening, so this overestimates deep inside a bend); the opening has one mean
 luminance for rising and one for descending rays (portal_views.portal_luminances); light reflected by the tunnel's own
-surfaces is not added. The direct sun is
-not in this term: it stays traced by the shadow ray, and the opening luminance is estimated without the sun's disk.
+surfaces is not added. The direct sun is not in this term: it stays traced by the shadow ray, and the opening
+luminance is estimated without the sun's disk.
 """
 
 from __future__ import annotations
