@@ -84,6 +84,14 @@ def test_drive_agae_converges_on_the_emulators_brightness(emulators, tmp_path):
     assert 60.0 < last.mean() < 180.0 and np.ptp(last) < 3.0, means  # settled, neither dark nor clipped
     exposure = frames["exposure_us"].to_numpy()
     assert np.ptp(exposure[-15:]) / exposure[-15:].mean() < 0.03 and exposure[-1] > 3000.0
+    # the last row against the camera itself, asked through Aravis directly (no expoctl code): the loop ends after
+    # its last frame, so the camera still holds that frame's settings
+    ask = ("import gi; gi.require_version('Aravis', '0.8'); from gi.repository import Aravis; "
+           "c = Aravis.Camera.new('127.0.0.1'); print(c.get_exposure_time(), c.get_gain())")
+    held = emulators.run([sys.executable, "-c", ask])
+    assert held.returncode == 0, held.stderr
+    exposure_us, gain_raw = (float(v) for v in held.stdout.split())
+    assert frames["exposure_us"].iat[-1] == exposure_us and frames["gain_db"].iat[-1] == gain_raw * GAIN_DB_PER_RAW
     meta = yaml.safe_load((out / "sequence.yaml").read_text())
     assert meta["cameras"] == 1 and meta["drive"]["frames"] == 60 and meta["camera1"]["settings_source"] == "readback"
     assert meta["camera1"]["features"]["gain"] == "GainRaw" and meta["camera1"]["features"]["exposure"] == "ExposureTimeAbs"
