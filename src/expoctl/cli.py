@@ -6,6 +6,7 @@
   expoctl drive --camera ID --controller NAME ...  drive a real camera in closed loop, record it, print timing
   expoctl record --camera1 ID --camera2 ID ...   record dual-camera training data on two real cameras
   expoctl cameras                                list the cameras found (ids for --camera)
+  expoctl latency --camera ID                    a camera's actuation delay, measured from its images
 
 Each subcommand lives in a module exposing `add_arguments(parser)` and `run(args) -> int`.
 """
@@ -25,6 +26,7 @@ SUBCOMMANDS = {
     "drive": ("expoctl.cameras.drive_cli", "drive a real camera in closed loop with a controller"),
     "record": ("expoctl.cameras.record_cli", "record dual-camera training data on two real cameras"),
     "cameras": ("expoctl.cameras.list_cli", "list the cameras found"),
+    "latency": ("expoctl.cameras.latency_cli", "measure a camera's actuation delay from its images"),
 }
 
 

@@ -3,6 +3,7 @@ loopback only), run as a user runs them; their output goes through `expoctl vali
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -233,3 +234,16 @@ def _wait_for_line(proc: subprocess.Popen, text: str, timeout_s: float = 60.0) -
         if not line and proc.poll() is not None:
             raise AssertionError(f"expoctl exited ({proc.returncode}) before printing {text!r}: {proc.stderr.read()}")
     raise AssertionError(f"no {text!r} within {timeout_s} s")
+
+
+def test_latency_from_images_and_from_read_back(emulators):
+    """The emulator applies a written setting from its next frame on; the image shows it after >= 1 camera frame, and
+    never before the read-back metadata does (read-back is a lower bound)."""
+    cam_a, _ = emulators.ids()
+    res = emulators.expoctl("latency", "--camera", cam_a, "--steps", "6", "--json", *camera_args())
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout.splitlines()[-1])
+    assert summary["settings_source"] == "readback" and summary["steps_without_image_change"] == 0
+    image, meta = summary["image_delay_frames"]["values"], summary["metadata_delay_frames"]["values"]
+    assert len(image) == len(meta) == 6 and set(meta) == {1}
+    assert all(1 <= i <= 4 for i in image) and summary["image_delay_frames"]["median"] >= 1
