@@ -72,6 +72,10 @@ def test_open_road_inliers_form_an_inverted_u(sweeps):
     assert points[-1].saturated_fraction > 0.9 and n[-1] <= 0.15 * n[k], n
 
 
+@pytest.mark.xfail(strict=True, reason="on the calibrated camera (f/5.8, 59.1°, portal daylight) the tunnel pose's ORB "
+                   "curve is flat with two humps (120–136 inliers from 2.5 to 6.5 EV and again at 30 ms + 30 dB): the "
+                   "first, set by the portal-lit walls, wins, 1.5 EV above the road's peak, while the p95 ratio is "
+                   "6.7 EV. It held on the old camera (70°, f/2); see `benchmarks/exposure_response.py`")
 def test_tunnel_peak_moves_by_the_luminance_ratio(sweeps):
     """The rising side of the U is set by noise in the bulk of the image, the falling side by clipping of its
     brightest few per cent (measured clipped share at the peaks: 3–6 %). So the peak moves by at least the ratio of the
