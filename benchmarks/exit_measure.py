@@ -3,8 +3,9 @@
 For every (route split, controller) of an evaluation it prints:
 - `dyn/stat`: the dynamic-section minimum over the static-section median of ORB inlier matches (NFM); the paper's
   AG+AE on its real rig: 0.09;
-- the frames more than 50 % saturated (grey ≥ 250) in each exit window (frames from 0 to 4 s after an exit portal), per
-  run, and the longest such run of consecutive frames;
+- the frames more than 50 % saturated (grey ≥ 250) in each exit window (frames from 2.5 s before to 4 s after an exit
+  portal: the most saturated frames come just before it, when the opening fills the view), per run, and the longest
+  such run of consecutive frames;
 - VO successes, frame to frame and against the local map (`expoctl.vo`, `expoctl.vo_map`).
 
 Two modes:
@@ -38,7 +39,7 @@ from expoctl.errors import ConfigError, InputError  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 
 PAPER_AGAE_DYN_OVER_STATIC = 0.09
-EXIT_WINDOW_S = (0.0, 4.0)  # after an exit portal
+EXIT_WINDOW_S = (-2.5, 4.0)  # around an exit portal: its dynamic span before it (the portal fills the view) and 4 s after
 HALF_SATURATED = 0.5
 
 
