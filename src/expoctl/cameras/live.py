@@ -5,11 +5,12 @@ Per call `capture(t, settings)`:
 2. free-running (one camera, `drive`): take the newest frame the camera has sent, discarding older queued ones so the
    controller always acts on the latest image (and, with register read-back, every frame queued before a new
    command was written: read back after the write, it would be labelled with settings it was not exposed with);
-   triggered (`record`): software-trigger every camera, then take one frame from each — both frames of a pair come
-   from the same trigger;
+   triggered (`record`): drop anything still queued (a late frame of an earlier trigger), software-trigger every
+   camera, then take one frame from each — both frames of a pair come from the same trigger;
 3. pairing check (two cameras): the two frames' host receive times must lie within `pair_tolerance_ms`. Frames of
-   consecutive triggers are at least one loop period apart (≥ 40 ms at 25 Hz), so a default tolerance of 10 ms can
-   never pair frames of different triggers; it catches a camera that missed a trigger or delivered a stale frame.
+   consecutive triggers are at least one loop period apart (≥ 20 ms up to 50 Hz, 40 ms at 25 Hz), so the default
+   tolerance of 10 ms cannot pair frames of different triggers; it catches a camera that missed a trigger or
+   delivered a stale frame.
    A pair outside it is discarded and the trigger repeated (counted in `stats.mispaired`); three in a row stop
    the run with an error naming both cameras;
 4. bookkeeping: frames the camera numbered but we never received (gaps in its frame counter: dropped in transport or
