@@ -94,8 +94,8 @@ def test_agae_returns_to_its_own_level_from_a_bright_start(probe):
         at_level, bright = rows
         assert abs(at_level["final_offset_ev"]) < 0.1, start
         assert abs(bright["final_offset_ev"]) < 0.3
-        # +6 EV, unless the camera's range ends first: at f/5.8 the tunnel's own level is ~24 dB at 30 ms, and 30 dB is
-        # the top, so that start is clipped a little short of 6 EV
+        # +6 EV, unless the camera's range ends first: here the tunnel's own level is 5.7 EV below the top (30 ms at
+        # 30 dB), so that start is clipped a little short of 6 EV
         assert 5.0 < bright["start_offset_ev"] <= 6.0 + 1e-9
         # the darkening limit sets the pace; the first of the 4 frames has no step yet (the AE meters the frame before)
         assert bright["mean_step_first_ev"] == pytest.approx(-0.178 * 3 / 4, abs=1e-3), start
