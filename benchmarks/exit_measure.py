@@ -57,7 +57,19 @@ def summarise(frames: pd.DataFrame, runs: pd.DataFrame, metrics: dict) -> dict:
         m = metrics.get(split, {}).get(ctrl, {})
         stat = m.get("static", {}).get("orb", {}).get("median_nfm", float("nan"))
         dyn = m.get("dynamic", {}).get("orb", {}).get("min_nfm", float("nan"))
-        exits = []
+        exits, losses = [], []  # losses: where VO lost track (frame of the window, nearest portal, exposure state)
+        for _, run in r.sort_values("run_id").iterrows():
+            f = frames[frames.run_id == run.run_id].sort_values("frame").reset_index(drop=True)
+            for col in ("vo_failed_at", "vo_map_failed_at"):
+                k = int(run[col]) if col in run and run[col] is not None and run[col] >= 0 else -1
+                hit = np.flatnonzero(f["frame"].to_numpy() == k)
+                if k >= 0 and hit.size:
+                    k = int(hit[0])
+                    losses.append({"run_id": str(run.run_id), "test": "map" if "map" in col else "frame_to_frame",
+                                   "frame": k, "portal": str(f.portal_kind[k]),
+                                   "portal_dt_s": round(float(f.portal_dt_s[k]), 2),
+                                   "saturated_frac": round(float(f.saturated_frac[k]), 3),
+                                   "mean_grey": round(float(f.mean_grey[k]), 1)})
         for _, run in r.sort_values("run_id").iterrows():
             f = frames[frames.run_id == run.run_id].sort_values("frame")
             at_exit = (f.portal_kind == "exit") & f.portal_dt_s.between(*EXIT_WINDOW_S)
@@ -70,7 +82,7 @@ def summarise(frames: pd.DataFrame, runs: pd.DataFrame, metrics: dict) -> dict:
         out.setdefault(split, {})[ctrl] = {
             "static_median_orb": stat, "dynamic_min_orb": dyn,
             "dyn_over_static": dyn / stat if stat and math.isfinite(stat) and stat > 0 else float("nan"),
-            "exits": exits,
+            "exits": exits, "vo_losses": losses,
             "vo_success": [int(r.vo_success.sum()), int(len(r))],
             "vo_map_success": [int(r.vo_map_success.sum()), int(len(r))] if "vo_map_success" in r else None,
             "vo_min_inliers": int(r.vo_min_inliers.min()),
@@ -90,6 +102,9 @@ def print_summary(case: str, s: dict) -> None:
             print(f"  {split:10s} {ctrl:15s} {v['static_median_orb']:8.0f} {v['dynamic_min_orb']:7.0f} "
                   f"{v['dyn_over_static']:8.2f} | {ex:36s} | {v['vo_success'][0]:>2}/{v['vo_success'][1]:<3} "
                   f"{vm[0]:>2}/{vm[1]:<3} {v['vo_min_inliers']:>5}/{v['vo_map_min_inliers']}")
+            for lo in v.get("vo_losses", []):
+                print(f"  {'':26s}   lost ({lo['test']}) at frame {lo['frame']}: {lo['portal']} {lo['portal_dt_s']:+.2f} s, "
+                      f"{100 * lo['saturated_frac']:.0f} % saturated, mean grey {lo['mean_grey']:.0f}")
 
 
 def load_eval_dir(d: Path) -> tuple[pd.DataFrame, pd.DataFrame, dict]:

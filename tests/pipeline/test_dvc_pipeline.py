@@ -76,10 +76,15 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     second = p.dvc("repro")
     assert _ran(second.stdout) == set(), second.stdout
 
-    # Switching iteration 3 off re-runs exactly the iteration-3 stages; the final model is then iteration 2's.
+    # Switching iteration 3 off re-runs exactly the iteration-3 stages and the selection; evaluate re-runs exactly when
+    # the selection's final network changed (it depends on the network, not on the iteration keys; which candidate
+    # wins is the selection's measured outcome, not something this test fixes).
+    final_before = (p.root / "models" / "controller_final.pt").read_bytes()
     p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true"])
     third = p.dvc("repro")
-    assert _ran(third.stdout) == {"compose", "select_model", "evaluate", "report"} | ITERATION3, third.stdout
+    final_changed = (p.root / "models" / "controller_final.pt").read_bytes() != final_before
+    assert _ran(third.stdout) == ({"compose", "select_model", "report"} | ITERATION3
+                                  | ({"evaluate"} if final_changed else set())), third.stdout
     model2 = (p.root / "models" / "controller_iter2.pt").read_bytes()
     assert (p.root / "models" / "controller_iter3.pt").read_bytes() == model2
     assert pd.read_parquet(p.root / "data" / "iter3" / "frames.parquet").equals(frames2)
@@ -95,7 +100,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
                      "report.strip_columns=4"])
     assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
     runs = p.stage_runs()
-    assert runs["report"] == 3 and runs["evaluate"] == 2 and runs["select_model"] == 2
+    assert runs["report"] == 3 and runs["evaluate"] == 1 + final_changed and runs["select_model"] == 2
     assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter2"] == 1 and runs["train_iter3"] == 2
 
 
