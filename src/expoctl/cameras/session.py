@@ -223,6 +223,17 @@ def _open_writer(out: Path, meta: dict) -> BackgroundWriter:
         raise InputError(f"{out}: cannot create the recording there ({exc})") from None
 
 
+def _open_writer_and_start(out: Path, meta: dict, rig) -> BackgroundWriter:
+    """The recording's writer, then the cameras started; a camera that cannot start leaves nothing behind."""
+    writer = _open_writer(out, meta)
+    try:
+        rig.start()
+    except BaseException:
+        writer.abort()
+        raise
+    return writer
+
+
 def _rate_hz(arrivals: list[float]) -> float | None:
     return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0]) if len(arrivals) > 1 and arrivals[-1] > arrivals[0] else None
 
@@ -261,12 +272,7 @@ def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, ou
             "controller": {"name": controller_name, "params": params},
             "initial_settings": {"gain_db": start.gain_db, "exposure_us": start.exposure_us},
             "camera1": camera.info.to_dict(), "limits": {"camera1": _limits_dict(limits)}}
-    writer = _open_writer(out, meta)
-    try:
-        rig.start()
-    except BaseException:
-        writer.abort()
-        raise
+    writer = _open_writer_and_start(out, meta, rig)
     loop = drive_rig(rig, 1, controller, start, range(0, n_frames), seed=0, limit=rig.limit)
     report(f"{'frame':>6} {'gain_dB':>8} {'exposure_us':>11} {'mean':>6} {'controller_ms':>13} {'delay_frames':>12}")
 
@@ -323,12 +329,7 @@ def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], refere
             "pairing": {"method": "software trigger, both cameras per frame",
                         "timestamp": "host receive time (Aravis system timestamp), one clock for both cameras",
                         "tolerance_ms": float(pair_tolerance_ms)}}
-    writer = _open_writer(out, meta)
-    try:
-        rig.start()
-    except BaseException:
-        writer.abort()
-        raise
+    writer = _open_writer_and_start(out, meta, rig)
     n = UNTIL_STOPPED if n_frames is None else int(n_frames)
     loop = drive_rig(rig, 2, controller, start, range(warmup_frames, warmup_frames + n), seed,
                      perturbation=perturbation, warmup_frames=warmup_frames, limit=rig.limit)
