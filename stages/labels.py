@@ -36,8 +36,9 @@ def run(cfg: dict, tracker) -> None:
     names = {k: str(paths[k]) for k in ("frames", "features", "matches")}
     labels = compute_labels(frames, features, matches, lcfg, names=names)
     if labels.empty:  # nothing to train on: stop here rather than in the train stage
-        raise InputError(f"{paths['frames']}: no time step has a complete window t+1 … t+{lcfg.window} "
-                         f"({len(frames) // 2} frames; each sequence needs at least {lcfg.window + 1} consecutive)")
+        first, last = lcfg.latency_frames, lcfg.latency_frames + lcfg.window - 1
+        raise InputError(f"{paths['frames']}: no time step has a complete window t+{first} … t+{last} "
+                         f"({len(frames) // 2} frames; each sequence needs at least {last + 1} consecutive)")
     stats = compute_label_stats(labels, frames, dataclasses.asdict(lcfg))
     reports_dir = PROJECT_ROOT / paths["reports_dir"]
     write_parquet(labels, PROJECT_ROOT / paths["labels"])

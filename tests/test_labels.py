@@ -179,11 +179,32 @@ def test_combined_frontend_needs_both_frontends():
     ({"hybrid_feat_weight": 1.5}, "labels.hybrid_feat_weight"),
     ({"hybrid_exposure_average": "median"}, "labels.hybrid_exposure_average"),
     ({"windw": 4}, "labels.windw"),
+    ({"latency_frames": 0}, "labels.latency_frames"),
+    ({"latency_frames": True}, "labels.latency_frames"),
 ])
 def test_bad_config(cfg, key):
     with pytest.raises(ConfigError) as err:
         LabelConfig.from_dict(cfg)
     assert err.value.key == key
+
+
+def test_latency_shifts_the_window_by_whole_frames():
+    # With latency L the window of step t is t+L … t+L+W−1: exactly the window of step t+L−1 at latency 1. So every
+    # label at L = 2 equals the L = 1 label one frame later (targets, scores, ties), and the last step loses its label.
+    rng = np.random.default_rng(3)
+    frames, features, matches = make_tables(19)  # gain_of stays inside the camera's 30 dB
+    features["n_features"] = rng.integers(0, 30, len(features))
+    matches["n_inliers"] = rng.integers(0, 30, len(matches))
+    one = compute_labels(frames, features, matches, {"frontend": "orb", "latency_frames": 1})
+    two = compute_labels(frames, features, matches, {"frontend": "orb", "latency_frames": 2})
+    assert sorted(one.frame_id.unique()) == list(range(15)) and sorted(two.frame_id.unique()) == list(range(14))
+    shifted = one[one.frame_id >= 1].assign(frame_id=lambda d: d.frame_id - 1).reset_index(drop=True)
+    pd.testing.assert_frame_equal(two.reset_index(drop=True), shifted)
+    # the frame a latency-2 command cannot change any more (t+1) is never a target, however good it is
+    frames, features, matches = make_tables(7, feat={(1, 2): 500}, inl={(0, 1, 2): 500})
+    lab = compute_labels(frames, features, matches, {"latency_frames": 2})
+    assert pick(lab, "feat", 0).target_frame_id >= 2 and pick(lab, "match", 0).target_frame_id >= 2
+    assert pick(compute_labels(frames, features, matches), "feat", 0).target_frame_id == 1
 
 
 def _raises(match, frames, features, matches, **kw):

@@ -200,11 +200,19 @@ def findings(stats: dict) -> list[str]:
     return out
 
 
+def _window_span(cfg: dict) -> str:
+    """"t+L … t+L+W−1" from the label config (L = latency_frames, 1 when absent: reports written before it existed)."""
+    lat, w = cfg.get("latency_frames", 1), cfg.get("window")
+    if not isinstance(lat, int) or not isinstance(w, int):
+        return f"t+1 … t+{w if w is not None else '?'}"
+    return f"t+{lat} … t+{lat + w - 1}"
+
+
 def render_markdown(stats: dict) -> str:
     m = stats["metrics"]
     cfg = stats.get("config") or {}
     lines = ["# Label report", "",
-             f"Front end `{cfg.get('frontend', '?')}`, window t+1 … t+{cfg.get('window', '?')}, hybrid weight on "
+             f"Front end `{cfg.get('frontend', '?')}`, window {_window_span(cfg)}, hybrid weight on "
              f"M_feat {cfg.get('hybrid_feat_weight', '?')}, hybrid exposure average "
              f"`{cfg.get('hybrid_exposure_average', '?')}`. {stats['n_labelled_time_steps']} labelled time steps "
              f"of {stats['n_frames']} frames.", "",

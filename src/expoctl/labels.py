@@ -1,27 +1,30 @@
 """Self-supervised training targets (paper §III-C): M_feat, M_match and M_hybrid over a future window.
 
-For a time step t of one sequence the window is the frames t+1 … t+W (W = `window`, paper: 4, both cameras).
+For a time step t of one sequence the window is the frames t+L … t+L+W−1 (W = `window`, paper: 4, both cameras;
+L = `latency_frames`, the first frame a command computed from frame t can expose: 1 on the paper's rig, so the
+window is t+1 … t+W; 2 for a camera whose settings land at t+2).
 
-- M_feat: of the 2·W images (t+a, camera i), a = 1 … W, the one with the most detected features; the target is the
+- M_feat: of the 2·W images (t+a, camera i), a = L … L+W−1, the one with the most detected features; the target is the
   gain/exposure that image was taken with.
-- M_match: of the 4·W consecutive pairs (t+b, camera i) → (t+b+1, camera j), b = 0 … W−1, i, j ∈ {1, 2} (cross-camera
-  pairs included), the one with the most inlier matches; the target is the settings of the *later* image (t+b+1, j).
+- M_match: of the 4·W consecutive pairs (t+b, camera i) → (t+b+1, camera j), b = L−1 … L+W−2, i, j ∈ {1, 2}
+  (cross-camera pairs included), the one with the most inlier matches; the target is the settings of the *later*
+  image (t+b+1, j).
 - M_hybrid: weighted average of the two targets' settings (`hybrid_feat_weight` on M_feat, the rest on M_match).
 
 "Most" is counted by one front end (`frontend: orb | viso`) or by both (`orb+viso`): each candidate's ORB and
 libviso2-style counts, each divided by the best candidate's count of that front end in the same window, summed.
 
 Tie-breaking (deterministic, by candidate order; the first maximum wins):
-  1. the earliest frame in the window (smaller a, or smaller b): it is the nearest pose to t+1, where the settings
+  1. the earliest frame in the window (smaller a, or smaller b): it is the nearest pose to t+L, where the settings
      computed at t take effect, so it approximates "the same pose" best;
   2. the reference camera (camera 1) before the perturbed camera: the paper keeps the reference settings unless a
      perturbation is *better*, and a tie is not better;
   3. for M_match, after the target camera j, the source camera i = 1 before i = 2 (it does not change the target).
   A frequent tie in practice is all-zero counts (e.g. a black frame in a tunnel): the target is then the reference
-  camera's settings at t+1.
+  camera's settings at t+L.
 
 A time step gets no label when its window is incomplete: it is too close to the sequence end, or a frame id inside
-t … t+W is absent (a gap). Inconsistent input (a frame with one camera, a missing camera pairing, NaN or negative
+t … t+L+W−1 is absent (a gap). Inconsistent input (a frame with one camera, a missing camera pairing, NaN or negative
 counts, settings outside the camera range) is an `InputError` naming the table, sequence and frame.
 """
 
@@ -54,7 +57,7 @@ LABEL_COLUMNS = (
 @dataclass(frozen=True)
 class LabelConfig:
     frontend: str = "orb"  # whose counts define "most features" / "most inlier matches": orb | viso | orb+viso
-    window: int = 4  # future frames t+1 … t+window (paper: 4, one full quadrant cycle of the perturbation)
+    window: int = 4  # future frames t+L … t+L+window−1 (paper: 4, one full quadrant cycle of the perturbation)
     hybrid_feat_weight: float = 0.5  # M_hybrid = w·M_feat + (1 − w)·M_match (paper default: equal weights)
     # How M_hybrid averages exposure. "linear" (default) follows the paper ("the weighted average of the parameter
     # values") and equals averaging the network's linearly scaled targets, so the hybrid target is exactly the
@@ -62,6 +65,9 @@ class LabelConfig:
     # photometrically even-handed: the linear mean of 1 ms and 4 ms (2.5 ms) is 1.32 EV above the first but only
     # 0.68 EV below the second. Gain is in dB, already logarithmic, so it is averaged as is either way.
     hybrid_exposure_average: str = "linear"
+    # The first future frame the command computed from frame t lands on (the controller's actuation latency): the
+    # window starts there, because frames before it are already committed to earlier commands. 1 = the paper's rig.
+    latency_frames: int = 1
 
     @classmethod
     def from_dict(cls, d: Mapping | None, group: str = "labels") -> "LabelConfig":
@@ -75,6 +81,9 @@ class LabelConfig:
                               f"must be one of {', '.join(FRONTENDS + (COMBINED_FRONTEND,))}; got {cfg.frontend!r}")
         if isinstance(cfg.window, bool) or not isinstance(cfg.window, int) or cfg.window < 1:
             raise ConfigError(f"{group}.window", f"must be an integer ≥ 1; got {cfg.window!r}")
+        lat = cfg.latency_frames
+        if isinstance(lat, bool) or not isinstance(lat, int) or lat < 1:
+            raise ConfigError(f"{group}.latency_frames", f"must be an integer ≥ 1; got {lat!r}")
         w = cfg.hybrid_feat_weight
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= float(w) <= 1.0:
             raise ConfigError(f"{group}.hybrid_feat_weight", f"must be a number in [0, 1]; got {w!r}")
@@ -293,20 +302,20 @@ def compute_labels(frames: pd.DataFrame, features: pd.DataFrame, matches: pd.Dat
     used = FRONTENDS if cfg.frontend == COMBINED_FRONTEND else (cfg.frontend,)
     n_feat = [feature_counts(features, idx, f, names["features"]) for f in used]
     n_inl = [match_counts(matches, idx, f, names["matches"]) for f in used]
-    w = cfg.window
-    rows = np.flatnonzero(idx.has_ahead(w))  # t … t+w all present in the same sequence
+    w, lat = cfg.window, cfg.latency_frames
+    rows = np.flatnonzero(idx.has_ahead(lat + w - 1))  # t … t+lat+w−1 all present in the same sequence
     # one front end: its raw counts (score = count); orb+viso: the relative sum (score in [0, 2])
     combine = _relative_sum if len(used) > 1 else (lambda v: v[0])
 
     # M_feat: candidates ordered (a, camera) → first max = earliest frame, then camera 1.
-    ahead = rows[:, None] + np.arange(1, w + 1)
+    ahead = rows[:, None] + np.arange(lat, lat + w)
     k, f_score, f_tied = _argmax_first(combine([n[ahead].reshape(len(rows), 2 * w) for n in n_feat]))
-    f_row, f_cam = rows + 1 + k // 2, k % 2
+    f_row, f_cam = rows + lat + k // 2, k % 2
     # M_match: candidates ordered (b, cam_to j, cam_from i) → earliest pair, then target camera 1, then source 1.
-    pairs = rows[:, None] + np.arange(w)
+    pairs = rows[:, None] + np.arange(lat - 1, lat - 1 + w)
     k, m_score, m_tied = _argmax_first(
         combine([n[pairs].transpose(0, 1, 3, 2).reshape(len(rows), 4 * w) for n in n_inl]))
-    m_row, m_cam, m_src = rows + 1 + k // 4, (k // 2) % 2, k % 2
+    m_row, m_cam, m_src = rows + lat + k // 4, (k // 2) % 2, k % 2
 
     g_f, e_f = idx.gain_db[f_row, f_cam], idx.exposure_us[f_row, f_cam]
     g_m, e_m = idx.gain_db[m_row, m_cam], idx.exposure_us[m_row, m_cam]

@@ -134,3 +134,15 @@ def _run_backends(tmp_path, frames):
         make_controller("learned", {"checkpoint": str(tmp_path / "controller.pt"), "backend": "tensorrt"})
     with pytest.raises(ConfigError, match="controllers.learned.weights"):
         make_learned({"weights": "x"})
+    # latency_frames 2: the same commands, each one frame later (the first frame keeps the initial settings)
+    late = make_learned({"checkpoint": str(tmp_path / "controller.pt"), "latency_frames": 2})
+    assert late.name == "learned"
+    late.reset(Settings(5.0, 2000.0))
+    applied, outs = Settings(5.0, 2000.0), []
+    for f, prompt in zip(frames, [Settings(5.0, 2000.0)] + [Settings(*o) for o in results["torch"][:-1]]):
+        applied = late.update(f, prompt)  # fed the settings the on-time run saw, so the network's inputs agree
+        outs.append((applied.gain_db, applied.exposure_us))
+    assert outs[0] == (5.0, 2000.0) and np.allclose(outs[1:], results["torch"][:-1])
+    for bad in (0, 1.5, "2"):
+        with pytest.raises(ConfigError, match="controllers.learned.latency_frames"):
+            make_learned({"checkpoint": str(tmp_path / "controller.pt"), "latency_frames": bad})

@@ -61,3 +61,32 @@ class TimedController(Controller):
         out = self.inner.update(image, applied)
         self.update_ms.append((time.perf_counter() - t0) * 1e3)
         return out
+
+
+class DelayedController(Controller):
+    """Delegates to a controller whose commands land `latency_frames` frames after the frame they were computed from.
+
+    The simulated rig applies a command at t+1 (`expoctl.rig.closed_loop`); a real camera's pipeline may need longer
+    (the calibrated camera: t+2 at the earliest, docs/calibration.md). This holds each command back by
+    `latency_frames − 1` frames, so the settings computed from frame t expose frame t + `latency_frames`. Until the
+    first command lands, the camera keeps the initial settings. The inner controller sees every frame with the
+    settings it was actually exposed with, as a real controller would. Use it in the simulator only: on a real
+    camera the camera's own pipeline supplies the latency.
+    """
+
+    def __init__(self, inner: Controller, latency_frames: int):
+        if isinstance(latency_frames, bool) or not isinstance(latency_frames, int) or latency_frames < 1:
+            raise ValueError(f"latency_frames must be an integer ≥ 1, got {latency_frames!r}")
+        self.inner = inner
+        self.name = inner.name
+        self.latency_frames = latency_frames
+        self._pending: list[Settings] = []
+
+    def reset(self, initial: Settings) -> None:
+        self.inner.reset(initial)
+        # the commands already "in flight" when the sequence starts: the initial settings
+        self._pending = [initial] * (self.latency_frames - 1)
+
+    def update(self, image: np.ndarray, applied: Settings) -> Settings:
+        self._pending.append(self.inner.update(image, applied))
+        return self._pending.pop(0)

@@ -38,7 +38,7 @@ import torch
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.controllers.agae import ln_exposure_product, split_exposure_first
-from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.base import Controller, DelayedController, Settings
 from expoctl.errors import ConfigError
 from expoctl.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
 
@@ -127,8 +127,12 @@ class LearnedController(Controller):
 
 def make_learned(params: dict) -> Controller:
     """Registry factory: params {checkpoint: models/controller.pt, backend: torch|onnx, num_threads: 1,
-    allocation: network|exposure_first}."""
-    allowed = {"checkpoint", "backend", "num_threads", "allocation"}
+    allocation: network|exposure_first, latency_frames: 1}.
+
+    `latency_frames` (simulator only): the network's settings computed from frame t expose frame t + latency_frames
+    (1: the paper's rig; 2: the calibrated camera's earliest, docs/calibration.md). Train with the same value
+    (`labels.latency_frames` follows it), so the labels target the frames the command can still change."""
+    allowed = {"checkpoint", "backend", "num_threads", "allocation", "latency_frames"}
     unknown = set(params) - allowed
     if unknown:
         raise ConfigError(f"controllers.learned.{sorted(unknown)[0]}", f"unknown key (known: {sorted(allowed)})")
@@ -136,8 +140,12 @@ def make_learned(params: dict) -> Controller:
     nt = params.get("num_threads", 1)
     if nt is not None and (not isinstance(nt, int) or nt < 1):
         raise ConfigError("controllers.learned.num_threads", f"must be a positive int or null, got {nt!r}")
-    return LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"),
+    latency = params.get("latency_frames", 1)
+    if isinstance(latency, bool) or not isinstance(latency, int) or latency < 1:
+        raise ConfigError("controllers.learned.latency_frames", f"must be an integer ≥ 1, got {latency!r}")
+    ctrl = LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"),
                                              allocation=params.get("allocation", "network"))
+    return ctrl if latency == 1 else DelayedController(ctrl, latency)
 
 
 def register_learned() -> None:
