@@ -13,7 +13,7 @@ Two modes:
         summarise evaluate outputs already written (reports/eval/ of a `dvc repro`);
     .venv/bin/python benchmarks/exit_measure.py run --case NAME OVERRIDE [OVERRIDE ...] [--case NAME ...]
         run the evaluation (expoctl.evaluate) for each case, with evaluate.controllers=[agae,fixed,mean_intensity]
-        unless an override says otherwise, in this project (its train split must have been collected: evaluate tunes
+        unless an override says otherwise (--keep DIR also writes each case's outputs to DIR/NAME), in this project (its train split must have been collected: evaluate tunes
         SumLog on it), and summarise. Example: --case underpass world.cities.test=underpass ~evaluate.splits.validation
 
 Writes benchmarks/results/exit_measure.json (or --out).
@@ -126,6 +126,9 @@ def main() -> int:
     s1.add_argument("eval_dirs", nargs="+", type=Path)
     s2 = sub.add_parser("run")
     s2.add_argument("--case", nargs="+", action="append", required=True, metavar=("NAME", "OVERRIDE"))
+    s2.add_argument("--keep", type=Path, metavar="DIR",
+                    help="also write each case's evaluate outputs to DIR/NAME (eval/ and metrics.json, as the stage "
+                         "writes them), e.g. for benchmarks/paper_tables.py")
     for p in (s1, s2):
         p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "exit_measure.json")
     args = ap.parse_args()
@@ -136,7 +139,7 @@ def main() -> int:
             for d in args.eval_dirs:
                 results[str(d)] = summarise(*load_eval_dir(d))
         else:
-            from expoctl.evaluate import evaluate
+            from expoctl.evaluate import evaluate, write_outputs
             from stages.compose import compose_config
 
             for name, *overrides in args.case:
@@ -144,6 +147,8 @@ def main() -> int:
                     overrides = ["evaluate.controllers=[agae,fixed,mean_intensity]", *overrides]
                 t1 = time.time()
                 res = evaluate(compose_config(list(overrides)), ROOT)
+                if args.keep:
+                    write_outputs(res, args.keep / name)
                 results[name] = summarise(res.frames, res.runs, res.metrics)
                 results[name]["_overrides"] = list(overrides)
                 results[name]["_seconds"] = round(time.time() - t1, 1)
