@@ -215,7 +215,7 @@ def test_controller_params_for_a_camera(tmp_path):
 
 def test_background_writer_keeps_order_and_reports_a_write_error(tmp_path):
     from expoctl.cameras.session import BackgroundWriter
-    from expoctl.rig.raw import SequenceWriter
+    from expoctl.raw.format import SequenceWriter
 
     img = np.zeros((4, 6, 3), np.uint8)
     w = BackgroundWriter(SequenceWriter(tmp_path / "seq", {"source": "rig"}), max_queued=2)

@@ -18,7 +18,7 @@ from emulated import GAIN_DB_PER_RAW, camera_args
 
 from expoctl.controllers.base import Settings
 from expoctl.errors import InputError
-from expoctl.ingest import IngestConfig, ingest
+from expoctl.raw.ingest import IngestConfig, ingest
 from expoctl.rig.protocol import PerturbationConfig, perturb
 
 

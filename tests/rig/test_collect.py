@@ -7,7 +7,7 @@ import yaml
 from expoctl.errors import ConfigError
 from expoctl.rig.closed_loop import RigConfig
 from expoctl.rig.collect import CollectConfig, collect, plan_sequences
-from expoctl.rig.raw import validate_raw_dir
+from expoctl.raw.format import validate_raw_dir
 from expoctl.rig.protocol import perturb, PerturbationConfig
 from expoctl.controllers.base import Settings
 

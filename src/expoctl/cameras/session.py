@@ -1,6 +1,6 @@
 """Recording sessions on real cameras: `drive` (one camera under a controller) and `record` (the paper's dual-camera
 data collection). Both run the library's loop (`expoctl.rig.closed_loop.drive_rig`) over a `LiveRig` and write a raw
-sequence with `expoctl.rig.raw.SequenceWriter`.
+sequence with `expoctl.raw.format.SequenceWriter`.
 
 Stopping, and what is left on disk:
 - after `frames` frames, or on Ctrl-C / SIGTERM (the first one: finish the current frame, then stop; a second one
@@ -30,7 +30,7 @@ from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.errors import InputError
 from expoctl.rig.closed_loop import RigFrame, drive_rig
 from expoctl.rig.protocol import PerturbationConfig
-from expoctl.rig.raw import SequenceWriter
+from expoctl.raw.format import SequenceWriter
 
 CONTROLLER_NAMES = ("agae", "fixed", "learned")
 REFERENCE_NAMES = ("agae", "learned")

@@ -44,7 +44,7 @@ from expoctl.rig.closed_loop import (
     rig_metadata,
     run_closed_loop,
 )
-from expoctl.rig.raw import SequenceWriter
+from expoctl.raw.format import SequenceWriter
 
 SPLITS = ("train", "validation", "test")
 

@@ -9,7 +9,7 @@
 
 `SequenceWriter` writes one sequence into a hidden temporary directory and renames it into place on `close()`, so a
 crash never leaves a half-written sequence. The reader functions raise `InputError`; the validator in
-`expoctl.rig.validate` collects every problem instead of stopping at the first.
+`expoctl.raw.validate` collects every problem instead of stopping at the first.
 """
 
 from __future__ import annotations
@@ -200,7 +200,7 @@ def _plain(obj: Any) -> Any:
 
 
 def validate_raw_dir(raw_dir: str | os.PathLike, decode_images: bool = True) -> list[str]:
-    """Every problem of every sequence under `raw_dir` (see `expoctl.rig.validate`); empty list = valid."""
-    from expoctl.rig.validate import validate_raw_dir as _validate
+    """Every problem of every sequence under `raw_dir` (see `expoctl.raw.validate`); empty list = valid."""
+    from expoctl.raw.validate import validate_raw_dir as _validate
 
     return _validate(raw_dir, decode_images)

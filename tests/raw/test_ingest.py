@@ -6,8 +6,8 @@ import pytest
 from synthetic_raw import write_synthetic_sequence
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.ingest import IngestConfig, assign_split, ingest
-from expoctl.rig.raw import read_image_rgb
+from expoctl.raw.ingest import IngestConfig, assign_split, ingest
+from expoctl.raw.format import read_image_rgb
 
 
 def test_ingest_writes_frames_and_image_store(raw_dir, tmp_path):

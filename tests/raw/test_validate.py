@@ -12,7 +12,7 @@ import pytest
 import yaml
 from synthetic_raw import write_synthetic_sequence
 
-from expoctl.rig.validate import check_sequence, validate_raw_dir
+from expoctl.raw.validate import check_sequence, validate_raw_dir
 
 
 @pytest.fixture

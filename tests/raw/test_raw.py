@@ -6,7 +6,7 @@ import pytest
 from synthetic_raw import write_synthetic_sequence
 
 from expoctl.errors import InputError
-from expoctl.rig.raw import SequenceWriter, find_sequences, read_image_rgb, read_png_size, read_sequence_yaml
+from expoctl.raw.format import SequenceWriter, find_sequences, read_image_rgb, read_png_size, read_sequence_yaml
 
 
 def test_writer_round_trip(tmp_path):

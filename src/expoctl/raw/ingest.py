@@ -25,8 +25,8 @@ import pandas as pd
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.io import atomic_dir, write_parquet
-from expoctl.rig.raw import find_sequences, read_image_rgb
-from expoctl.rig.validate import SequenceCheck, check_sequence
+from expoctl.raw.format import find_sequences, read_image_rgb
+from expoctl.raw.validate import SequenceCheck, check_sequence
 
 SPLITS = ("train", "validation", "test")
 FRAMES_TABLE_COLUMNS = ["sequence", "frame_id", "camera", "timestamp_ns", "gain_db", "exposure_us", "image_path",

@@ -27,7 +27,7 @@ import pandas as pd
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.errors import InputError
-from expoctl.rig.raw import (
+from expoctl.raw.format import (
     FRAMES_COLUMNS,
     FRAMES_CSV,
     SECTION_KINDS,

@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from expoctl.errors import InputError
-from expoctl.rig.raw import find_sequences
-from expoctl.rig.validate import check_sequence, summary_line
+from expoctl.raw.format import find_sequences
+from expoctl.raw.validate import check_sequence, summary_line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
