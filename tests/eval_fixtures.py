@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from expoctl.rig.closed_loop import FunctionScene
+from expoctl.sim.closed_loop import FunctionScene
 
 K_DN = 25.6  # DN per (cd/m² · s · linear gain): 1000 cd/m² at 5 ms, 0 dB → 128 DN
 
@@ -161,7 +161,7 @@ def use_real_or_test_sensor(monkeypatch) -> str:
 
         return "real"
     except ImportError:
-        import expoctl.rig.closed_loop as cl
+        import expoctl.sim.closed_loop as cl
 
         monkeypatch.setattr(cl, "make_sensors", lambda cfg, render, n, amp, seed: ([LinearSensor(2.0)] * n, {}))
         return "linear stand-in"

@@ -87,7 +87,7 @@ class EvaluationResult:
 
 def plan_windows(cfg: dict, project_root: str | os.PathLike = ".") -> list[Window]:
     """Every window of the evaluation, in order (loads the cities' geometry, renders nothing)."""
-    from expoctl.rig.closed_loop import RigConfig
+    from expoctl.sim.closed_loop import RigConfig
 
     ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
     rig = RigConfig.from_dict(cfg.get("rig"))
@@ -106,7 +106,7 @@ def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_ke
                  plan_key: str, fps: float, warmup_frames: int) -> list[Window]:
     """The windows `plan` asks for on `world.cities.<city_key>`, labelled `label` (their route_split; it also seeds
     the traversals and noise, so two labels never share a window). `plan_key` is the config key errors name."""
-    from expoctl.rig.collect import _base_seed, _city_name, _load_city_cached, derive_seed
+    from expoctl.sim.collect import _base_seed, _city_name, _load_city_cached, derive_seed
 
     base_seed = _base_seed(cfg)
     world = cfg.get("world") or {}
@@ -227,14 +227,14 @@ def _controller_params(cfg: dict, name: str) -> dict:
 
 def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     """Render and evaluate one run (runs in a worker process)."""
-    import expoctl.controllers.oracle as oracle_mod
+    import expoctl.sim.oracle as oracle_mod
     from expoctl.controllers.learned import register_learned
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
     from expoctl.evaluate_run import WindowFrames, drive_window
     from expoctl.features.pipeline import FeaturesConfig, make_frontend
-    from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
-    from expoctl.rig.collect import _load_city_cached
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
+    from expoctl.sim.collect import _load_city_cached
     from expoctl.vo import intrinsics_matrix
 
     register_learned()
@@ -301,7 +301,7 @@ def _traversal_cached(city, w: Window, fps: float):
 def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = False) -> EvaluationResult:
     """Plan, tune SumLog, run every (window, controller) and aggregate (no files written)."""
     from expoctl.controllers.registry import make_controller
-    from expoctl.rig.closed_loop import RenderConfig, RigConfig
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
     project_root = Path(project_root)
     ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))  # ConfigErrors before any work
@@ -317,7 +317,7 @@ def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = 
             raise InputError(f"{model_path}: trained model missing — the 'learned' controller cannot run; run the "
                              "train stage first (or drop 'learned' from evaluate.controllers)")
     if "oracle" in ecfg.controllers:
-        from expoctl.controllers.oracle import OracleParams
+        from expoctl.sim.oracle import OracleParams
 
         OracleParams.from_dict(_controller_params(cfg, "oracle"))
     windows = plan_windows(cfg, project_root)
@@ -366,7 +366,7 @@ def write_outputs(result: EvaluationResult, reports_dir: str | os.PathLike) -> d
 def _run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool) -> Iterator[tuple[RunJob, tuple]]:
     from tqdm import tqdm
 
-    from expoctl.rig.collect import _single_threaded_children
+    from expoctl.sim.collect import _single_threaded_children
 
     bar = tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress)
     try:

@@ -20,7 +20,7 @@ import numpy as np
 
 from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
-from expoctl.rig.closed_loop import run_closed_loop
+from expoctl.sim.closed_loop import run_closed_loop
 from expoctl.vo_map import MapTracker, MapTrackerConfig
 
 #: front-end keys of metrics.json / frames.parquet: raw and SumLog variants of each front end

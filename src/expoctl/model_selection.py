@@ -200,7 +200,7 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
     One candidate alone is returned without driving anything (nothing to choose between)."""
     from expoctl.evaluate import RunJob, _run_jobs, city_windows, tune_sumlog_params
     from expoctl.evaluate_aggregate import add_section_ids, section_stats
-    from expoctl.rig.closed_loop import RenderConfig, RigConfig
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
     scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigErrors before any work
     ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))

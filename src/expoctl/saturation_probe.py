@@ -134,7 +134,7 @@ class SaturationProbe:
     """The probe's scene and reference levels, built once and run for any number of controllers."""
 
     def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor_cfg: dict | None, agae: Controller):
-        from expoctl.rig.closed_loop import RouteScene, make_sensors
+        from expoctl.sim.closed_loop import RouteScene, make_sensors
 
         self.cfg = pcfg
         self.trajectory = city.traversal(pcfg.traversal, None, rig.fps, pcfg.seed)
@@ -150,7 +150,7 @@ class SaturationProbe:
 
     def _drive(self, controller: Controller, initial: Settings, start: int) -> tuple[np.ndarray, float]:
         """Per-frame EV of the applied settings, and the clipped share of the last frame."""
-        from expoctl.rig.closed_loop import run_closed_loop
+        from expoctl.sim.closed_loop import run_closed_loop
 
         evs, last = [], None
         for f in run_closed_loop(self.scene, [self.sensor], controller, initial,
@@ -185,7 +185,7 @@ def make_probe(pcfg: ProbeConfig, cfg: Mapping, project_root) -> SaturationProbe
     from pathlib import Path
 
     from expoctl.controllers.registry import make_controller
-    from expoctl.rig.closed_loop import RenderConfig, RigConfig
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig
     from expoctl.world import load_city
 
     world = cfg.get("world") or {}

@@ -19,8 +19,8 @@ from expoctl.cameras.base import (
 )
 from expoctl.cameras.live import ActuationDelay, LiveRig
 from expoctl.controllers.base import Controller, Settings
-from expoctl.rig.closed_loop import drive_rig
-from expoctl.rig.protocol import PerturbationConfig, perturb
+from expoctl.sim.closed_loop import drive_rig
+from expoctl.sim.protocol import PerturbationConfig, perturb
 
 
 def _mosaic(rgb: np.ndarray, tile: str) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 
 from expoctl.controllers.base import Controller, Settings
 from expoctl.errors import ConfigError
-from expoctl.rig.protocol import PerturbationConfig, perturb
+from expoctl.sim.protocol import PerturbationConfig, perturb
 
 #: stream id mixed into per-frame sensor seeds (the perturbation uses a different one)
 _SENSOR_STREAM = 0x5E4

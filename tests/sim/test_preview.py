@@ -7,8 +7,8 @@ import yaml
 
 from expoctl.controllers.base import Settings
 from expoctl.errors import InputError
-from expoctl.rig import preview
-from expoctl.rig.preview import PreviewFrame, _select, annotate, contact_sheet
+from expoctl.sim import preview
+from expoctl.sim.preview import PreviewFrame, _select, annotate, contact_sheet
 
 
 def frames_with_exit(n=40, h=48, w=64):
@@ -84,7 +84,7 @@ def test_preview_end_to_end_tiny(tmp_path):
 
 
 def test_video_has_every_frame(tmp_path):
-    from expoctl.rig.preview import write_video
+    from expoctl.sim.preview import write_video
 
     frames = frames_with_exit()
     path = tmp_path / "run.mp4"

@@ -5,10 +5,10 @@ import pytest
 import yaml
 
 from expoctl.errors import ConfigError
-from expoctl.rig.closed_loop import RigConfig
-from expoctl.rig.collect import CollectConfig, collect, plan_sequences
+from expoctl.sim.closed_loop import RigConfig
+from expoctl.sim.collect import CollectConfig, collect, plan_sequences
 from expoctl.raw.format import validate_raw_dir
-from expoctl.rig.protocol import perturb, PerturbationConfig
+from expoctl.sim.protocol import perturb, PerturbationConfig
 from expoctl.controllers.base import Settings
 
 TINY = {

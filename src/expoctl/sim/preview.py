@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from expoctl.controllers.registry import make_controller
-    from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop
     from expoctl.world import load_city
 
     cfg: dict[str, Any] = {}

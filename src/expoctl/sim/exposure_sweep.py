@@ -28,7 +28,7 @@ import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX
 from expoctl.features.pipeline import rgb_to_grey
-from expoctl.rig.closed_loop import sensor_rng
+from expoctl.sim.closed_loop import sensor_rng
 
 Y_RGB = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec.709 luminance weights of the linear RGB channels
 DB_PER_EV = 20.0 * math.log10(2.0)  # 6.02 dB of gain = one stop

@@ -179,7 +179,7 @@ class OracleController(Controller):
 
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
         from expoctl.features.pipeline import rgb_to_grey
-        from expoctl.rig.closed_loop import sensor_rng
+        from expoctl.sim.closed_loop import sensor_rng
 
         t0 = time.perf_counter()
         t = self._t

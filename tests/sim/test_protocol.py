@@ -4,7 +4,7 @@ import pytest
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
-from expoctl.rig.protocol import PerturbationConfig, excursion_offset_ev, perturb, quadrant
+from expoctl.sim.protocol import PerturbationConfig, excursion_offset_ev, perturb, quadrant
 
 
 def test_quadrant_cycle_visits_all_four_every_four_frames():

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from expoctl.controllers.base import Controller, Settings
-from expoctl.rig.closed_loop import FunctionScene, run_closed_loop
-from expoctl.rig.protocol import PerturbationConfig, perturb
+from expoctl.sim.closed_loop import FunctionScene, run_closed_loop
+from expoctl.sim.protocol import PerturbationConfig, perturb
 
 
 class EncodingSensor:

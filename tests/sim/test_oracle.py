@@ -7,11 +7,11 @@ import pytest
 from eval_fixtures import LinearSensor, moving_scene
 
 from expoctl.controllers.base import Settings
-from expoctl.controllers.oracle import CachedScene, OracleController, OracleParams
+from expoctl.sim.oracle import CachedScene, OracleController, OracleParams
 from expoctl.controllers.registry import make_controller
 from expoctl.errors import ConfigError
 from expoctl.features.pipeline import rgb_to_grey
-from expoctl.rig.closed_loop import run_closed_loop
+from expoctl.sim.closed_loop import run_closed_loop
 
 
 def test_default_ladder_is_exposure_first_at_one_ev_steps():
@@ -32,7 +32,7 @@ def test_bad_config_names_the_key(bad):
 
 def test_registry_refuses_an_oracle_without_the_simulator():
     from expoctl.controllers import registry
-    from expoctl.controllers.oracle import register_oracle
+    from expoctl.sim.oracle import register_oracle
 
     saved = dict(registry.CONTROLLERS)
     try:
@@ -92,7 +92,7 @@ def test_no_next_frame_keeps_the_settings():
 
 
 def test_hybrid_settings_average_in_the_scaled_ranges():
-    from expoctl.controllers.oracle import hybrid_settings
+    from expoctl.sim.oracle import hybrid_settings
 
     s = hybrid_settings(Settings(0.0, 75.0), Settings(30.0, 30000.0), 0.5)
     assert s.gain_db == pytest.approx(15.0) and s.exposure_us == pytest.approx(75.0 + 0.5 * 29925.0)

@@ -1,7 +1,7 @@
 """Collect raw dual-camera sequences with the simulated rig (the `collect` stage; paper §III-B data collection).
 
 Camera 1 runs the reference controller (AG+AE in iteration 1, the learned network in iteration 2); camera 2 gets
-camera 1's settings perturbed through the paper's quadrant cycle (`expoctl.rig.protocol`). One sequence per job:
+camera 1's settings perturbed through the paper's quadrant cycle (`expoctl.sim.protocol`). One sequence per job:
 
 - every split: `n_sequences` traversals of its city (`world.cities.<split>`; indices first_traversal, +1, …), each with
   its own speed, sun and sky drawn by the world. With `frames: N` a traversal is an N-frame window that the world
@@ -34,7 +34,7 @@ import numpy as np
 from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
-from expoctl.rig.closed_loop import (
+from expoctl.sim.closed_loop import (
     _known,
     RenderConfig,
     RigConfig,
