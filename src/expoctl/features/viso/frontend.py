@@ -15,13 +15,13 @@ from time import perf_counter, process_time
 import numpy as np
 
 from expoctl.errors import InputError
-from expoctl.features.viso_descriptors import descriptors
-from expoctl.features.viso_filters import blob_corner, half_resolution, sobel_du_dv
-from expoctl.features.viso_match import FeatureSet, Grid, circle_match, flow_prior, make_feature_set, refine_integer
-from expoctl.features.viso_nms import block_nms
-from expoctl.features.viso_outliers import remove_outliers
-from expoctl.features.viso_params import MARGIN, VisoParams, parse_params
-from expoctl.features.viso_ransac import bucket, ransac_inlier_count
+from expoctl.features.viso.descriptors import descriptors
+from expoctl.features.viso.filters import blob_corner, half_resolution, sobel_du_dv
+from expoctl.features.viso.match import FeatureSet, Grid, circle_match, flow_prior, make_feature_set, refine_integer
+from expoctl.features.viso.nms import block_nms
+from expoctl.features.viso.outliers import remove_outliers
+from expoctl.features.viso.params import MARGIN, VisoParams, parse_params
+from expoctl.features.viso.ransac import bucket, ransac_inlier_count
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,7 @@ def pair_counts(prev: VisoFeatures, cur: VisoFeatures, seed: int, params: dict |
 
 
 class VisoFrontEnd:
-    """libviso2-style front end (FrontEnd protocol). params: the `features.viso` config dict (see viso_params)."""
+    """libviso2-style front end (FrontEnd protocol). params: the `features.viso` config dict (see viso.params)."""
 
     name = "viso"
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from expoctl.features.viso_ransac import (
+from expoctl.features.viso.ransac import (
     bucket,
     draw_samples,
     fundamental_8point,

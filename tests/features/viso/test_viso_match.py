@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from expoctl.features.viso_filters import sobel_du_dv
-from expoctl.features.viso_match import Grid, circle_match, flow_prior, make_feature_set, refine_integer
+from expoctl.features.viso.filters import sobel_du_dv
+from expoctl.features.viso.match import Grid, circle_match, flow_prior, make_feature_set, refine_integer
 
 GRID = Grid(640, 480, 50)
 R = 100.0

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from expoctl.features.viso_filters import (
+from expoctl.features.viso.filters import (
     BLOB_KERNEL,
     CORNER_KERNEL,
     blob_corner,

@@ -3,7 +3,7 @@
 import numpy as np
 from numba import njit
 
-from expoctl.features.viso_sad import _sad32_loop, sad32
+from expoctl.features.viso.sad import _sad32_loop, sad32
 
 
 @njit

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from expoctl.features.viso_descriptors import REFINE_DU_OFFSETS, REFINE_DV_OFFSETS
-from expoctl.features.viso_sad import sad32
+from expoctl.features.viso.descriptors import REFINE_DU_OFFSETS, REFINE_DV_OFFSETS
+from expoctl.features.viso.sad import sad32
 
 #: A prior range narrower than this (px) is widened symmetrically to it.
 PRIOR_MIN_WIDTH = 20

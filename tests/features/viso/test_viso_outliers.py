@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from expoctl.features.viso_outliers import delaunay_support, remove_outliers
+from expoctl.features.viso.outliers import delaunay_support, remove_outliers
 
 # a square with an interior point: the Delaunay triangulation is the unique fan of 4 triangles around the centre
 CUR = np.array([[0, 0], [100, 0], [100, 100], [0, 100], [50, 50]])

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from expoctl.features.viso_descriptors import descriptors, refinement_descriptor
+from expoctl.features.viso.descriptors import descriptors, refinement_descriptor
 
 
 def _coordinate_gradients():

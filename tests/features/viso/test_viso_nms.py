@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from expoctl.features.viso_nms import block_nms
+from expoctl.features.viso.nms import block_nms
 
 
 def test_block_nms_on_constructed_responses():

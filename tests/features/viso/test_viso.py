@@ -8,8 +8,8 @@ import pytest
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.viso import VisoFrontEnd, extract_features, match_matches, pair_counts
-from expoctl.features.viso_params import parse_params
-from expoctl.features.viso_ransac import ransac_inlier_count
+from expoctl.features.viso.params import parse_params
+from expoctl.features.viso.ransac import ransac_inlier_count
 
 
 def _reference_dir():
