@@ -27,8 +27,8 @@ import pandas as pd
 from expoctl.controllers.agae import AgAeController
 from expoctl.controllers.base import Settings
 from expoctl.features.pipeline import make_frontend, pair_seed, rgb_to_grey
-from expoctl.label_report import compute_label_stats, render_markdown
-from expoctl.labels import LabelConfig, compute_labels
+from expoctl.labels.report import compute_label_stats, render_markdown
+from expoctl.labels.targets import LabelConfig, compute_labels
 from expoctl.sim.closed_loop import FunctionScene, run_closed_loop
 from expoctl.sim.protocol import PerturbationConfig
 

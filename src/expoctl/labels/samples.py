@@ -16,7 +16,7 @@ import pandas as pd
 
 from expoctl.camera import ranges
 from expoctl.errors import ConfigError, InputError
-from expoctl.labels import METRICS, _require_columns, _where, index_frames
+from expoctl.labels.targets import METRICS, _require_columns, _where, index_frames
 
 SPLITS = ("train", "validation", "test")
 N_INPUT_FRAMES = 3  # t, t−1, t−2: the network's input (paper)

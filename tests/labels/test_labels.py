@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.labels import LabelConfig, compute_labels
+from expoctl.labels.targets import LabelConfig, compute_labels
 
 
 def gain_of(f, cam):  # every image has its own settings, so a target names the image it came from

@@ -8,8 +8,8 @@ import pytest
 
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import InputError
-from expoctl.label_report import compute_label_stats, flat_metrics, render_markdown
-from expoctl.labels import compute_labels
+from expoctl.labels.report import compute_label_stats, flat_metrics, render_markdown
+from expoctl.labels.targets import compute_labels
 from fake_tracker import FakeTracker
 
 

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.samples import COMBINATIONS, SampleConfig, build_samples, sample_id, summarise_samples
+from expoctl.labels.samples import COMBINATIONS, SampleConfig, build_samples, sample_id, summarise_samples
 from fake_tracker import FakeTracker
 
 

@@ -3,7 +3,7 @@
 The authors found M_match targets mostly reproduce the reference camera (camera 1) and M_feat targets prefer the
 perturbed camera about +1 EV brighter. Per metric this module measures: the share of targets from each camera, the
 offset of the target from the reference camera in EV (and in dB of gain), how often consecutive targets are equal,
-and how often the choice was a tie (ties go to the reference camera, see `expoctl.labels`).
+and how often the choice was a tie (ties go to the reference camera, see `expoctl.labels.targets`).
 
 Two reference points for the offset:
 - same frame: the target image against camera 1 at the same frame (0 when the target is camera 1's own image);
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from expoctl.camera import ranges
-from expoctl.labels import METRICS, index_frames
+from expoctl.labels.targets import METRICS, index_frames
 
 SAME_EV = 0.01  # |offset| below 1/100 stop counts as "same brightness as the reference"
 
@@ -72,7 +72,7 @@ def _metric_stats(lab: pd.DataFrame, ref_gain, ref_exp, target_row, next_row) ->
 
 
 def compute_label_stats(labels: pd.DataFrame, frames: pd.DataFrame, label_cfg: dict | None = None) -> dict:
-    """Statistics of a labels table (as written by `expoctl.labels.compute_labels`) against its frames table."""
+    """Statistics of a labels table (as written by `expoctl.labels.targets.compute_labels`) against its frames table."""
     idx = index_frames(frames)
     keys = idx.keys()
     ref_gain, ref_exp = idx.gain_db[:, 0], idx.exposure_us[:, 0]
