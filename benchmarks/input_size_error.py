@@ -18,10 +18,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from expoctl.dataset import load_sample_sets_from_files
-from expoctl.model import ModelConfig
+from expoctl.net.dataset import load_sample_sets_from_files
+from expoctl.net.model import ModelConfig
 from expoctl.synthetic_data import make_synthetic_dataset
-from expoctl.train import TrainConfig, fit
+from expoctl.net.train import TrainConfig, fit
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,6 +1,6 @@
 """Does a controller recover from a badly exposed start? A closed-loop probe of its fixed points.
 
-Why: open-loop metrics (validation loss, `expoctl.camera_follow`) describe a network in the states its training data
+Why: open-loop metrics (validation loss, `expoctl.net.follow`) describe a network in the states its training data
 contain: camera 1 under a well-exposed reference, camera 2 within about ±1 EV of it. In closed loop the network also
 meets states its data never contain, and the worst of them is a saturated frame: it shows almost nothing of the
 scene, so nothing in the image tells the network how far to step down. If its step there is about zero, saturation is

@@ -25,7 +25,7 @@ import numpy as np
 from torch import nn
 
 from expoctl.camera.ranges import exposure_value_ev, norm_to_exposure, norm_to_gain
-from expoctl.dataset import SampleSet, predict
+from expoctl.net.dataset import SampleSet, predict
 
 MIN_INPUT_DIFFERENCE_EV = 0.2  # pairs whose two cameras' settings differ less carry no slope information
 

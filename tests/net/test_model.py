@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from expoctl.errors import ConfigError
-from expoctl.model import ExposureNet, ModelConfig, count_macs, count_parameters, min_input_size, scale_widths
+from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters, min_input_size, scale_widths
 
 
 def test_authors_sizes_at_224():

@@ -7,11 +7,11 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from expoctl.dataset import load_sample_sets_from_files
+from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import ConfigError, InputError
-from expoctl.model import ModelConfig
+from expoctl.net.model import ModelConfig
 from expoctl.synthetic_data import make_synthetic_dataset
-from expoctl.train import (TrainConfig, checkpoint_dict, complement_partners, error_sums, export_onnx, fit,
+from expoctl.net.train import (TrainConfig, checkpoint_dict, complement_partners, error_sums, export_onnx, fit,
                            hold_prediction, load_checkpoint, metrics_from_sums, predict, weighted_l1)
 
 TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
@@ -123,7 +123,7 @@ def test_consistency_term_makes_outputs_agree_across_cameras(sets):
     spread_tied = _camera_spread(tied.model, sets["validation"])
     assert spread_tied < 0.5 * spread_plain, (spread_tied, spread_plain)
     assert tied.metrics["beats_baseline"]
-    # ... and the open-loop follow that fit reports (expoctl.camera_follow) is closer to 0, "reads the scene" (the
+    # ... and the open-loop follow that fit reports (expoctl.net.follow) is closer to 0, "reads the scene" (the
     # plain network over-corrects on these synthetic data: its follow is negative)
     assert abs(tied.metrics["val_follow"]) < 0.5 * abs(plain.metrics["val_follow"])
 

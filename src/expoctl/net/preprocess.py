@@ -1,7 +1,7 @@
 """The one preprocessing path from camera frames to the network's 15-channel input (training and deployment).
 
 Paper bug 3 (specs/paper_protocol.md): the authors scaled the gain/exposure planes to 0–255 in training but 0–1 in
-deployment, and deployed on BGR. Here both training (`expoctl.dataset`) and the deployed controller
+deployment, and deployed on BGR. Here both training (`expoctl.net.dataset`) and the deployed controller
 (`expoctl.controllers.learned`) call exactly these two functions:
 
 1. `prepare_frame(image_uint8_rgb, store_hw, input_hw)` — a camera frame (any size, 8-bit RGB) → uint8 RGB at the

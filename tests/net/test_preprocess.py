@@ -10,9 +10,9 @@ import torch
 from expoctl.camera.ranges import exposure_to_norm, gain_to_norm
 from expoctl.controllers.base import Settings
 from expoctl.controllers.learned import LearnedController
-from expoctl.dataset import load_sample_sets
-from expoctl.model import ExposureNet, ModelConfig
-from expoctl.preprocess import CHANNEL_NAMES, assemble_input, prepare_frame
+from expoctl.net.dataset import load_sample_sets
+from expoctl.net.model import ExposureNet, ModelConfig
+from expoctl.net.preprocess import CHANNEL_NAMES, assemble_input, prepare_frame
 
 FULL_HW = (96, 128)  # camera resolution
 STORE_HW = (32, 48)  # image-store resolution (ingest)

@@ -7,7 +7,7 @@ one time step share one label, because the best settings for frame t+1 depend on
 frames the network looks at. Their inputs differ in the settings planes and in image brightness. The L1 loss alone
 lets a network that cannot yet read the scene sit near the hold predictor and move its output with its input
 settings; in closed loop, where the input is its own last output, that amplifies each step's bias
-(`expoctl.camera_follow`). With λ > 0 each global batch holds batch_size/2 pairs: a drawn sample and its complement,
+(`expoctl.net.follow`). With λ > 0 each global batch holds batch_size/2 pairs: a drawn sample and its complement,
 the same time step with every frame from the other camera (c112 ↔ c221; sharing the flip), and the loss adds
 λ·(ε·mean|Ĝ_a − Ĝ_b| + (1 − ε)·mean|Ê_a − Ê_b|), which is zero only for outputs that do not depend on the camera.
 The complement, not a random other combination: three of a sample's seven siblings share its frame t, and the hold
@@ -19,7 +19,7 @@ gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The consta
 of the training targets (the L1-optimal constant); the model's errors are reported next to it. A second, stronger
 reference is the hold predictor: "keep frame t's settings" (what a controller that never reacts would command). A
 network that has learnt anything about exposure must beat both. The final metrics also carry the open-loop camera
-follow of the best model on the whole validation split (`expoctl.camera_follow`): how much its output moves with its
+follow of the best model on the whole validation split (`expoctl.net.follow`): how much its output moves with its
 input settings, the quantity that amplifies a per-step bias in closed loop.
 
 Distributed data parallel: when `torch.distributed` is initialised (torchrun), each process takes an interleaved
@@ -42,11 +42,11 @@ import torch.distributed as dist
 from torch import nn
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
-from expoctl.camera_follow import camera_follow
-from expoctl.dataset import SampleSet, predict
+from expoctl.net.follow import camera_follow
+from expoctl.net.dataset import SampleSet, predict
 from expoctl.errors import ConfigError
-from expoctl.model import ExposureNet, ModelConfig, count_macs, count_parameters
-from expoctl.preprocess import CHANNEL_NAMES
+from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
+from expoctl.net.preprocess import CHANNEL_NAMES
 
 CHECKPOINT_FORMAT = "expoctl-controller-v1"
 

@@ -26,11 +26,11 @@ from torch import nn
 
 from expoctl.camera.ranges import EXPOSURE_SCALES
 from expoctl.errors import ConfigError
-from expoctl.preprocess import N_INPUT_CHANNELS, as_hw
+from expoctl.net.preprocess import N_INPUT_CHANNELS, as_hw
 
 
 OUTPUTS = ("absolute", "residual")
-# channels of frame t's gain and exposure planes (expoctl.preprocess channel order: [R, G, B, gain, exposure] × t, …)
+# channels of frame t's gain and exposure planes (expoctl.net.preprocess channel order: [R, G, B, gain, exposure] × t, …)
 _T_SETTING_CHANNELS = slice(3, 5)
 
 

@@ -1,7 +1,7 @@
 """Training data: samples.parquet + frames.parquet + image store → batches of network inputs.
 
 Speed: every frame any sample needs is read once from the memory-mapped store (`data/images/<sequence>.npy`,
-uint8 (n_frames, 2, H, W, 3), axis 1 = camera − 1), passed through `expoctl.preprocess.prepare_frame` (the same
+uint8 (n_frames, 2, H, W, 3), axis 1 = camera − 1), passed through `expoctl.net.preprocess.prepare_frame` (the same
 code the deployed controller runs) and kept in one uint8 array (N, 3, h, w). The 8 camera combinations of a time
 step share their frames, so the cache holds each frame once. A batch is then an index gather plus
 `assemble_input` — no decoding or resizing per sample per epoch.
@@ -24,7 +24,7 @@ import torch
 
 from expoctl.camera.ranges import rescale_exposure_norm
 from expoctl.errors import InputError
-from expoctl.preprocess import N_FRAMES, as_hw, assemble_input, prepare_frame, settings_to_norm
+from expoctl.net.preprocess import N_FRAMES, as_hw, assemble_input, prepare_frame, settings_to_norm
 
 SAMPLE_COLUMNS = ("sample_id", "sequence", "frame_id", "cam_t", "cam_t1", "cam_t2",
                   "target_gain_norm", "target_exposure_norm", "split")

@@ -9,11 +9,11 @@ import pytest
 import torch
 from torch import nn
 
-from expoctl.camera_follow import camera_follow, settings_ev, single_camera_pairs
-from expoctl.dataset import load_sample_sets_from_files
+from expoctl.net.follow import camera_follow, settings_ev, single_camera_pairs
+from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.synthetic_data import make_synthetic_dataset
 
-GAIN_T, EXPOSURE_T = 3, 4  # channels of frame t's settings planes (expoctl.preprocess.CHANNEL_NAMES)
+GAIN_T, EXPOSURE_T = 3, 4  # channels of frame t's settings planes (expoctl.net.preprocess.CHANNEL_NAMES)
 
 
 class Mix(nn.Module):
