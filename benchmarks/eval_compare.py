@@ -102,7 +102,7 @@ def main() -> int:
     print()
     print(vo_margin_table(runs))
     if "vo_map_min_inliers" in runs.columns:
-        # the local-map tracker (expoctl.vo_map): successes per city, then each run's fewest map inliers
+        # the local-map tracker (expoctl.vo.local_map): successes per city, then each run's fewest map inliers
         print()
         print(runs.groupby(["route_split", "controller"]).vo_map_success.agg(
             lambda v: f"{int(v.astype(bool).sum())}/{len(v)}").rename("map-tracking VO successes").to_string())
@@ -113,7 +113,7 @@ def main() -> int:
     return 0
 
 
-#: the map tracker's default bootstrap length (expoctl.vo_map): frames before it only build the map
+#: the map tracker's default bootstrap length (expoctl.vo.local_map): frames before it only build the map
 MAP_SCORED_FROM = 8
 
 

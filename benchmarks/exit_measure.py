@@ -6,7 +6,7 @@ For every (route split, controller) of an evaluation it prints:
 - the frames more than 50 % saturated (grey ≥ 250) in each exit window (frames from 2.5 s before to 4 s after an exit
   portal: the most saturated frames come just before it, when the opening fills the view), per run, and the longest
   such run of consecutive frames;
-- VO successes, frame to frame and against the local map (`expoctl.vo`, `expoctl.vo_map`).
+- VO successes, frame to frame and against the local map (`expoctl.vo.frame_to_frame`, `expoctl.vo.local_map`).
 
 Two modes:
     .venv/bin/python benchmarks/exit_measure.py summarise REPORTS_EVAL_DIR [...]

@@ -235,7 +235,7 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     from expoctl.features.pipeline import FeaturesConfig, make_frontend
     from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
     from expoctl.sim.collect import _load_city_cached
-    from expoctl.vo import intrinsics_matrix
+    from expoctl.vo.frame_to_frame import intrinsics_matrix
 
     register_learned()
     oracle_mod.register_oracle()

@@ -14,7 +14,7 @@ from typing import Any
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.errors import ConfigError
-from expoctl.vo_map import MapTrackerConfig
+from expoctl.vo.local_map import MapTrackerConfig
 
 ROUTE_SPLITS = ("validation", "test")
 CONTROLLER_NAMES = ("agae", "shin", "shim", "mean_intensity", "fixed", "learned", "oracle")
@@ -122,7 +122,7 @@ class EvaluateConfig:
 
 
 def vo_map_config_from_dict(d: Any, key: str, n_features: int) -> MapTrackerConfig:
-    """`evaluate.vo.map`: the local-map tracker's settings (expoctl.vo_map); it detects vo.n_features features."""
+    """`evaluate.vo.map`: the local-map tracker's settings (expoctl.vo.local_map); it detects vo.n_features features."""
     if not isinstance(d, dict):
         raise ConfigError(key, f"must be a mapping, got {d!r}")
     _no_unknown(d, set(MapTrackerConfig.__dataclass_fields__) - {"n_features"}, key)

@@ -3,7 +3,7 @@
 Per frame t (camera 1 only): the settings the frame was captured with, image statistics, and for each front end
 (ORB, libviso2-style), on the raw grey image and on its SumLog transform, the feature count and the matches /
 inlier matches (NFM) with frame t−1. The whole frame sequence also goes through monocular VO for the tracking-success
-test, twice: frame to frame (`expoctl.vo`) and against a local map with ORB-SLAM2's thresholds (`expoctl.vo_map`).
+test, twice: frame to frame (`expoctl.vo.frame_to_frame`) and against a local map with ORB-SLAM2's thresholds (`expoctl.vo.local_map`).
 Every controller of a window sees the same scene, sensor (same randomised parameters and fixed-pattern noise) and
 per-frame noise seeds, so their differences come from the settings alone.
 """
@@ -21,7 +21,7 @@ import numpy as np
 from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
 from expoctl.sim.closed_loop import run_closed_loop
-from expoctl.vo_map import MapTracker, MapTrackerConfig
+from expoctl.vo.local_map import MapTracker, MapTrackerConfig
 
 #: front-end keys of metrics.json / frames.parquet: raw and SumLog variants of each front end
 VARIANTS = ("orb", "viso", "orb_sumlog", "viso_sumlog")
@@ -82,7 +82,7 @@ def drive_window(
     Thumbnails: every `thumb_every`-th frame within `thumb_span_s` of a portal crossing, `thumb_width` px wide
     ({"frame": (k,), "image": (k, h, w, 3)}; empty when thumb_width is 0)."""
     from expoctl.features.pipeline import rgb_to_grey
-    from expoctl.vo import track_sequence
+    from expoctl.vo.frame_to_frame import track_sequence
 
     timed = TimedController(controller)
     rows: list[dict] = []
@@ -93,7 +93,7 @@ def drive_window(
 
     n = len(window.frames)
     gt = None if window.gt_poses is None else np.asarray(window.gt_poses)[:n]
-    # the stricter, ORB-SLAM2-like test tracks the same frames against a local map (expoctl.vo_map)
+    # the stricter, ORB-SLAM2-like test tracks the same frames against a local map (expoctl.vo.local_map)
     map_cfg = vo_map or MapTrackerConfig(n_features=vo_n_features)
     map_tracker = MapTracker(K, map_cfg, gt, seed=pair_seed(window.sequence, 0, "vo_map"))
 

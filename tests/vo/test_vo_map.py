@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from expoctl.errors import InputError
-from expoctl.vo import track_sequence
-from expoctl.vo_map import CHI2_2DOF_95, MapTracker, MapTrackerConfig, hamming, track_map_sequence
+from expoctl.vo.frame_to_frame import track_sequence
+from expoctl.vo.local_map import CHI2_2DOF_95, MapTracker, MapTrackerConfig, hamming, track_map_sequence
 from test_vo import K, _sequence
 
 BOOT3 = MapTrackerConfig(bootstrap_frames=3)  # the synthetic sequences are 14 frames: score from frame 3

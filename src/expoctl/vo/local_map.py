@@ -1,6 +1,6 @@
 """Monocular tracking against a local map, with ORB-SLAM2's tracking thresholds (the VO robustness test, stricter form).
 
-Why a second tracker: `expoctl.vo` asks only that two consecutive frames share enough essential-matrix inliers. The
+Why a second tracker: `expoctl.vo.frame_to_frame` asks only that two consecutive frames share enough essential-matrix inliers. The
 paper's VO, ORB-SLAM2, tracks each frame against a *map*: 3-D points triangulated from earlier keyframes, matched by
 projection with the descriptor they were last observed with, and it is lost when fewer than 30 of them survive the
 frame's pose optimisation (TrackLocalMap). A point enters the map only after it matched between two keyframes with
@@ -48,7 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from expoctl.errors import InputError
-from expoctl.vo import TrackingResult, _grey, absolute_trajectory_error, relative_pose, relative_pose_error
+from expoctl.vo.frame_to_frame import TrackingResult, _grey, absolute_trajectory_error, relative_pose, relative_pose_error
 
 CHI2_2DOF_95 = 5.991  # ORB-SLAM2's inlier bound on a monocular reprojection error, in units of σ²
 TH_HIGH = 100  # Hamming distance bounds (of 256 bits) for matching by projection and for triangulation

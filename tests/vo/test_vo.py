@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import InputError
-from expoctl.vo import absolute_trajectory_error, intrinsics_matrix, relative_pose, relative_pose_error, track_sequence, umeyama_rigid
+from expoctl.vo.frame_to_frame import absolute_trajectory_error, intrinsics_matrix, relative_pose, relative_pose_error, track_sequence, umeyama_rigid
 
 W, H, F = 320, 240, 260.0
 K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
