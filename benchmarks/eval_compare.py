@@ -96,7 +96,7 @@ def main() -> int:
     print()
     print(transition_depth(all_sections))
     # VO margin over the pooled runs: each run's worst frame pair (tracked inliers), runs tracked at stricter thresholds
-    from expoctl.report import vo_margin_table
+    from expoctl.report.results import vo_margin_table
 
     runs = load(specs, "runs")
     print()
@@ -120,7 +120,7 @@ MAP_SCORED_FROM = 8
 def map_fill_and_late_margins(frames: pd.DataFrame, runs: pd.DataFrame, first: int) -> str:
     """How fast the map fills (median map inliers over runs by frame index), then the map-VO margins scored from frame
     `first` on, leaving out runs that were lost before it (evaluations made with a shorter bootstrap)."""
-    from expoctl.report import vo_margin_table
+    from expoctl.report.results import vo_margin_table
 
     fill = frames[frames.frame <= 10].groupby("frame").vo_map_n_inliers.median()
     lines = ["median map inliers by frame: " + ", ".join(f"{int(k)}: {v:.0f}" for k, v in fill.dropna().items())]

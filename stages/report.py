@@ -1,11 +1,11 @@
-"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report)."""
+"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report.results)."""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
-from expoctl.report import ReportConfig, build_report
+from expoctl.report.results import ReportConfig, build_report
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)

@@ -132,7 +132,7 @@ def selection_project(root) -> tuple[dict, list]:
     a well-exposing one (iteration 1) and one stuck in saturation (iteration 2). Returns (config, candidates)."""
     from pathlib import Path
 
-    from expoctl.model_selection import Candidate
+    from expoctl.selection.model_selection import Candidate
 
     root = Path(root)
     cfg = make_fixture_project(root, controllers=["agae", "learned"])

@@ -235,7 +235,7 @@ def _factory(params: dict) -> Controller:
     missing = [k for k in ("scene", "sensor", "seed", "n_frames") if k not in params]
     if missing:
         raise ConfigError("controllers.oracle", "the oracle renders candidate frames, so it only runs inside the "
-                          "simulator (expoctl.evaluate builds it with the scene and sensor); missing "
+                          "simulator (expoctl.evaluation.runner builds it with the scene and sensor); missing "
                           + ", ".join(missing))
     rt = {k: params.pop(k) for k in _RUNTIME_KEYS if k in params}
     return make_oracle(params, rt["scene"], rt["sensor"], rt["seed"], rt["n_frames"], rt.get("first_frame", 0))

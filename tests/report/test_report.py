@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluate_run import VARIANTS
-from expoctl.report import (ReportConfig, headline, load_eval, nfm_table, runs_table, tracking_table,
+from expoctl.evaluation.run import VARIANTS
+from expoctl.report.results import (ReportConfig, headline, load_eval, nfm_table, runs_table, tracking_table,
                             vo_margin_table)
 
 
@@ -97,7 +97,7 @@ def test_report_config_checks():
 
 
 def test_selection_section_names_the_chosen_network_and_its_statistics():
-    from expoctl.report import selection_section
+    from expoctl.report.results import selection_section
 
     def stats(name, vo, orb, viso, off, clip, score=None):
         return {"name": name, "vo_ok": vo, "vo_runs": 2, "dynamic_min_nfm": {"orb": orb, "viso": viso},

@@ -9,9 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from expoctl.evaluate_aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
-from expoctl.evaluate_config import CONTROLLER_NAMES
-from expoctl.evaluate_run import VARIANTS
+from expoctl.evaluation.aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
+from expoctl.evaluation.config import CONTROLLER_NAMES
+from expoctl.evaluation.run import VARIANTS
 
 
 def _frames(controller, split, nfm_orb, sections, run_id=None, seq="s1"):

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from expoctl.errors import ConfigError
-from expoctl.evaluate import _windows_of
-from expoctl.evaluate_config import EvaluateConfig, SplitPlan
+from expoctl.evaluation.runner import _windows_of
+from expoctl.evaluation.config import EvaluateConfig, SplitPlan
 
 ROOT = Path(__file__).resolve().parents[1]
 

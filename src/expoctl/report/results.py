@@ -18,9 +18,9 @@ import numpy as np
 import pandas as pd
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluate_aggregate import validate_metrics
-from expoctl.evaluate_config import CONTROLLER_NAMES
-from expoctl.report_figures import image_strips, label, nfm_bars, ordered, tunnel_timeline
+from expoctl.evaluation.aggregate import validate_metrics
+from expoctl.evaluation.config import CONTROLLER_NAMES
+from expoctl.report.figures import image_strips, label, nfm_bars, ordered, tunnel_timeline
 
 SPLIT_TITLE = {"validation": "validation city (training city, other conditions)", "test": "test city (unseen)"}
 #: the paper's numbers (Tables I–III) to compare shapes with; absolute values differ (real camera, 2048×1536)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.saturation_probe import ProbeConfig, _longest_run, settings_at, start_frames
+from expoctl.selection.saturation_probe import ProbeConfig, _longest_run, settings_at, start_frames
 
 
 @pytest.mark.parametrize("d,key", [
@@ -31,7 +31,7 @@ def test_probe_config_defaults_and_lists():
 
 
 def test_select_config_refuses_a_probe_on_the_held_out_city():
-    from expoctl.model_selection import SelectConfig
+    from expoctl.selection.model_selection import SelectConfig
 
     with pytest.raises(ConfigError) as exc:
         SelectConfig.from_dict({"probe": {"city": "test"}})
@@ -71,7 +71,7 @@ def test_settings_at_is_the_inverse_of_the_exposure_value():
 def probe(tmp_path_factory):
     from eval_fixtures import make_fixture_project
 
-    from expoctl.saturation_probe import make_probe
+    from expoctl.selection.saturation_probe import make_probe
 
     root = tmp_path_factory.mktemp("probe")
     cfg = make_fixture_project(root)

@@ -10,7 +10,7 @@ other stage drives; the test city stays unseen until evaluation. Measured limit:
 seed 2's iteration 2 did not diverge (its divergence needs conditions those traversals lacked), so this stage did not
 catch it and is off by default (README, Results).
 
-First, the saturation probe (`expoctl.saturation_probe`, `select_model.probe`, on by default and cheap: about a
+First, the saturation probe (`expoctl.selection.saturation_probe`, `select_model.probe`, on by default and cheap: about a
 minute per candidate at 320×240): each candidate starts in closed loop from its AG+AE level and from +6 EV above it,
 on the open road and in a tunnel of the training city's traversal 900. A candidate that ends some start with ≥ 97 %
 of the frame clipped has a saturated fixed point and is dropped (`probe_filter`; if every candidate fails, all stay).
@@ -41,8 +41,8 @@ import pandas as pd
 
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluate_config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
-from expoctl.saturation_probe import ProbeConfig
+from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
+from expoctl.selection.saturation_probe import ProbeConfig
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
 SELECT_LABEL = "select"
@@ -171,7 +171,7 @@ def probe_candidates(cfg: dict, candidates: Sequence[Candidate], project_root: s
     builds it (controllers.learned's keys with the candidate's checkpoint)."""
     from expoctl.controllers.learned import register_learned
     from expoctl.controllers.registry import make_controller
-    from expoctl.saturation_probe import make_probe, probe_all
+    from expoctl.selection.saturation_probe import make_probe, probe_all
 
     pcfg = pcfg or SelectConfig.from_dict(cfg.get("select_model")).probe
     for c in candidates:
@@ -198,8 +198,8 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
     """Drive every candidate (and the reference) over the selection windows; score; choose (no files written).
 
     One candidate alone is returned without driving anything (nothing to choose between)."""
-    from expoctl.evaluate import RunJob, _run_jobs, city_windows, tune_sumlog_params
-    from expoctl.evaluate_aggregate import add_section_ids, section_stats
+    from expoctl.evaluation.runner import RunJob, _run_jobs, city_windows, tune_sumlog_params
+    from expoctl.evaluation.aggregate import add_section_ids, section_stats
     from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
     scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigErrors before any work

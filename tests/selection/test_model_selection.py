@@ -1,4 +1,4 @@
-"""expoctl.model_selection: the config, the statistics and rule (exact, on hand-made tables), and a closed-loop
+"""expoctl.selection.model_selection: the config, the statistics and rule (exact, on hand-made tables), and a closed-loop
 selection at fixture scale that must reject a network stuck in saturation."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from eval_fixtures import selection_project, use_real_or_test_sensor
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.model_selection import Candidate, SelectConfig, choose, run_statistics, score_candidates, select_model
+from expoctl.selection.model_selection import Candidate, SelectConfig, choose, run_statistics, score_candidates, select_model
 
 # ------------------------------------------------------------------------------------------------------------ config
 
@@ -168,7 +168,7 @@ def test_missing_candidate_stops_before_driving(tmp_path):
 
 
 def test_probe_filter_keeps_the_passing_candidates_in_order_or_all_when_none_pass():
-    from expoctl.model_selection import probe_filter
+    from expoctl.selection.model_selection import probe_filter
 
     cands = _cands(3)
     res = {c.name: {"passes": ok} for c, ok in zip(cands, (True, False, True))}

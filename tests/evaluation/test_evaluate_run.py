@@ -1,4 +1,4 @@
-"""One evaluation run (expoctl.evaluate_run.drive_window): the closed-loop contract and the per-frame rows."""
+"""One evaluation run (expoctl.evaluation.run.drive_window): the closed-loop contract and the per-frame rows."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from eval_fixtures import K_DN, LinearSensor, moving_scene
 
 from expoctl.controllers.base import Controller, Settings
-from expoctl.evaluate_run import VARIANTS, WindowFrames, drive_window, image_stats
+from expoctl.evaluation.run import VARIANTS, WindowFrames, drive_window, image_stats
 from expoctl.features.orb import OrbFrontEnd
 from expoctl.features.sumlog import SumLogParams
 from expoctl.features.viso import VisoFrontEnd

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from expoctl.evaluate_config import CONTROLLER_NAMES, ROUTE_SPLITS
-from expoctl.evaluate_run import VARIANTS
+from expoctl.evaluation.config import CONTROLLER_NAMES, ROUTE_SPLITS
+from expoctl.evaluation.run import VARIANTS
 
 SECTION_KINDS = ("static", "dynamic")
 

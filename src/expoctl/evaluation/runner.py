@@ -2,7 +2,7 @@
 
 Plan: for each route split (validation: world.cities.validation; test: world.cities.test), `n_traversals` traversals
 (their own speed, sun, sky; seeds disjoint from `collect`'s), and in each the configured windows around tunnels
-(`expoctl.evaluate_config`). One *run* = (window, controller); every controller of a window gets the same scene,
+(`expoctl.evaluation.config`). One *run* = (window, controller); every controller of a window gets the same scene,
 sensor parameters, fixed-pattern noise and per-frame noise seeds. Runs fan out over processes (`n_jobs`).
 
 SumLog: its parameters are tuned here, once per front end, before the fan-out, on sequential camera-1 pairs of the
@@ -30,8 +30,8 @@ import numpy as np
 import pandas as pd
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluate_aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
-from expoctl.evaluate_config import ROUTE_SPLITS, EvaluateConfig, SplitPlan
+from expoctl.evaluation.aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
+from expoctl.evaluation.config import ROUTE_SPLITS, EvaluateConfig, SplitPlan
 from expoctl.features.sumlog import SumLogParams
 
 
@@ -231,7 +231,7 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     from expoctl.controllers.learned import register_learned
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
-    from expoctl.evaluate_run import WindowFrames, drive_window
+    from expoctl.evaluation.run import WindowFrames, drive_window
     from expoctl.features.pipeline import FeaturesConfig, make_frontend
     from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
     from expoctl.sim.collect import _load_city_cached

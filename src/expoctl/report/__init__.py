@@ -1,0 +1,1 @@
+"""The evaluation report: reports/results.md (`results`) and its figures (`figures`)."""
