@@ -11,7 +11,7 @@ from torch import nn
 
 from expoctl.net.follow import camera_follow, settings_ev, single_camera_pairs
 from expoctl.net.dataset import load_sample_sets_from_files
-from expoctl.synthetic_data import make_synthetic_dataset
+from tests.support.synthetic_data import make_synthetic_dataset
 
 GAIN_T, EXPOSURE_T = 3, 4  # channels of frame t's settings planes (expoctl.net.preprocess.CHANNEL_NAMES)
 

@@ -10,7 +10,7 @@ import torch
 from expoctl.camera.ranges import gain_to_norm, norm_to_exposure
 from expoctl.net.dataset import load_sample_sets, load_sample_sets_from_files
 from expoctl.errors import InputError
-from expoctl.synthetic_data import make_synthetic_dataset
+from tests.support.synthetic_data import make_synthetic_dataset
 
 
 @pytest.fixture()

@@ -10,7 +10,7 @@ import torch
 from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import ConfigError, InputError
 from expoctl.net.model import ModelConfig
-from expoctl.synthetic_data import make_synthetic_dataset
+from tests.support.synthetic_data import make_synthetic_dataset
 from expoctl.net.train import (TrainConfig, checkpoint_dict, complement_partners, error_sums, export_onnx, fit,
                            hold_prediction, load_checkpoint, metrics_from_sums, predict, weighted_l1)
 

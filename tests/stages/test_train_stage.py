@@ -16,7 +16,7 @@ import torch
 import yaml
 
 from expoctl.errors import ConfigError
-from expoctl.synthetic_data import make_synthetic_dataset
+from tests.support.synthetic_data import make_synthetic_dataset
 from expoctl.net.train import load_checkpoint
 from stages import train as stage
 
