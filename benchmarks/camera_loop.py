@@ -47,7 +47,7 @@ def default_model(dest: Path, input_size: int) -> Path:
     import torch
 
     from expoctl.net.model import ExposureNet, ModelConfig
-    from expoctl.net.train import CHECKPOINT_FORMAT, export_onnx
+    from expoctl.net.checkpoint import CHECKPOINT_FORMAT, export_onnx
 
     d = yaml.safe_load((ROOT / "conf" / "model" / "default.yaml").read_text())
     cfg = ModelConfig.from_dict(dict(d, input_size=input_size))

@@ -30,7 +30,8 @@ from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import InputError
 from expoctl.io import write_json
 from expoctl.net.model import ModelConfig
-from expoctl.net.train import TrainConfig, checkpoint_dict, export_onnx, fit, predict
+from expoctl.net.train import TrainConfig, fit, predict
+from expoctl.net.checkpoint import checkpoint_dict, export_onnx
 
 log = logging.getLogger("expoctl.train")
 

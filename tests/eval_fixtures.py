@@ -61,7 +61,8 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
 
     from expoctl.io import write_png
     from expoctl.net.model import ExposureNet, ModelConfig
-    from expoctl.net.train import TrainConfig, TrainResult, checkpoint_dict
+    from expoctl.net.train import TrainConfig, TrainResult
+    from expoctl.net.checkpoint import checkpoint_dict
 
     root = Path(root)
     rows = []
@@ -114,7 +115,8 @@ def constant_network(src, dst, gain_db: float, exposure_us: float, onnx: bool = 
     import torch
 
     from expoctl.camera.ranges import exposure_to_norm, gain_to_norm
-    from expoctl.net.train import TrainConfig, TrainResult, checkpoint_dict, export_onnx, load_checkpoint
+    from expoctl.net.train import TrainConfig, TrainResult
+    from expoctl.net.checkpoint import checkpoint_dict, export_onnx, load_checkpoint
 
     model, ckpt = load_checkpoint(src)
     out = model.head[-1]

@@ -13,7 +13,7 @@ from expoctl.controllers.learned import LearnedController, exposure_first, make_
 from expoctl.controllers.registry import CONTROLLERS, make_controller
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig
-from expoctl.net.train import CHECKPOINT_FORMAT, export_onnx
+from expoctl.net.checkpoint import CHECKPOINT_FORMAT, export_onnx
 
 CFG = ModelConfig(input_size=(24, 24), conv_kernels=(3, 3, 3), pool=2, conv_widths=(4, 4, 4, 4), fc_widths=(4, 4, 4))
 

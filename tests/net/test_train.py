@@ -11,8 +11,9 @@ from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import ConfigError, InputError
 from expoctl.net.model import ModelConfig
 from tests.support.synthetic_data import make_synthetic_dataset
-from expoctl.net.train import (TrainConfig, checkpoint_dict, complement_partners, error_sums, export_onnx, fit,
-                           hold_prediction, load_checkpoint, metrics_from_sums, predict, weighted_l1)
+from expoctl.net.train import (TrainConfig, complement_partners, error_sums, fit, hold_prediction, metrics_from_sums,
+                               predict, weighted_l1)
+from expoctl.net.checkpoint import checkpoint_dict, export_onnx, load_checkpoint
 
 TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
                    fc_widths=(16, 8, 8), dropout=0.1)

@@ -17,7 +17,7 @@ import yaml
 
 from expoctl.errors import ConfigError
 from tests.support.synthetic_data import make_synthetic_dataset
-from expoctl.net.train import load_checkpoint
+from expoctl.net.checkpoint import load_checkpoint
 from stages import train as stage
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -74,7 +74,7 @@ class LearnedController(Controller):
     def from_checkpoint(cls, path, num_threads: int | None = 1, backend: str = "torch",
                         allocation: str = "network") -> "LearnedController":
         """Load models/controller.pt; backend "onnx" runs the exported models/controller.onnx beside it."""
-        from expoctl.net.train import load_checkpoint
+        from expoctl.net.checkpoint import load_checkpoint
 
         model, ckpt = load_checkpoint(path)
         session = None
