@@ -7,7 +7,7 @@ import yaml
 from expoctl.errors import ConfigError
 from expoctl.sim.closed_loop import RigConfig
 from expoctl.sim.collect import CollectConfig, collect, plan_sequences
-from expoctl.raw.format import validate_raw_dir
+from expoctl.raw.validate import validate_raw_dir
 from expoctl.sim.protocol import perturb, PerturbationConfig
 from expoctl.controllers.base import Settings
 

@@ -146,11 +146,3 @@ def make_learned(params: dict) -> Controller:
     ctrl = LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"),
                                              allocation=params.get("allocation", "network"))
     return ctrl if latency == 1 else DelayedController(ctrl, latency)
-
-
-def register_learned() -> None:
-    """Add "learned" to `expoctl.controllers.registry` (explicit, not at import: building it needs a trained
-    checkpoint, which the registry's build-every-controller-from-YAML test does not have)."""
-    from expoctl.controllers.registry import register
-
-    register("learned", make_learned)

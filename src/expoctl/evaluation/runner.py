@@ -106,9 +106,11 @@ def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_ke
                  plan_key: str, fps: float, warmup_frames: int) -> list[Window]:
     """The windows `plan` asks for on `world.cities.<city_key>`, labelled `label` (their route_split; it also seeds
     the traversals and noise, so two labels never share a window). `plan_key` is the config key errors name."""
-    from expoctl.sim.collect import _base_seed, _city_name, _load_city_cached, derive_seed
+    from expoctl.sim.collect import config_seed, derive_seed
+    from expoctl.world import load_city_cached
+    from expoctl.world.cities import resolve_city_name
 
-    base_seed = _base_seed(cfg)
+    base_seed = config_seed(cfg)
     world = cfg.get("world") or {}
     city_dir = world.get("city_dir")
     if city_dir is not None:
@@ -117,8 +119,8 @@ def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_ke
     if city_key not in cities:
         raise ConfigError(f"world.cities.{city_key}", f"missing: {plan_key} needs a city")
     spec = cities[city_key]
-    name = _city_name(spec, city_dir, f"world.cities.{city_key}")
-    city = _load_city_cached(spec, city_dir)
+    name = resolve_city_name(spec, city_dir, f"world.cities.{city_key}")
+    city = load_city_cached(spec, city_dir)
     if not city.tunnel_spans():
         raise ConfigError(f"world.cities.{city_key}", f"city {name!r} has no tunnel: nothing to drive windows around")
     tseed = derive_seed(base_seed, "evaluate-traversal", label)
@@ -228,16 +230,14 @@ def _controller_params(cfg: dict, name: str) -> dict:
 def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     """Render and evaluate one run (runs in a worker process)."""
     import expoctl.sim.oracle as oracle_mod
-    from expoctl.controllers.learned import register_learned
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
     from expoctl.evaluation.run import WindowFrames, drive_window
     from expoctl.features.pipeline import FeaturesConfig, make_frontend
     from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
-    from expoctl.sim.collect import _load_city_cached
+    from expoctl.world import load_city_cached
     from expoctl.vo.frame_to_frame import intrinsics_matrix
 
-    register_learned()
     oracle_mod.register_oracle()
     cfg, w = job.cfg, job.window
     ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
@@ -246,7 +246,7 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     render = RenderConfig.from_world(cfg.get("world"))
     if ecfg.render_size is not None:
         render = render.with_size(*ecfg.render_size)
-    city = _load_city_cached(w.city, w.city_dir)
+    city = load_city_cached(w.city, w.city_dir)
     traj = _traversal_cached(city, w, rig.fps)
     scene = RouteScene(city, traj, rig, render)
     sensors, _ = make_sensors(cfg.get("sensor"), render, 1, ecfg.sensor_randomisation, w.seed)
@@ -328,7 +328,7 @@ def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = 
     rows: list[dict] = []
     summaries: list[dict] = []
     thumbs: dict[str, dict] = {}
-    for job, (r, s, tb) in _run_jobs(jobs, ecfg.n_jobs, progress):
+    for job, (r, s, tb) in run_jobs(jobs, ecfg.n_jobs, progress):
         rows.extend(r)
         summaries.append(s)
         thumbs[job.run_id] = tb
@@ -363,10 +363,12 @@ def write_outputs(result: EvaluationResult, reports_dir: str | os.PathLike) -> d
     return {"metrics": reports_dir / "metrics.json", "eval_dir": eval_dir}
 
 
-def _run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool) -> Iterator[tuple[RunJob, tuple]]:
+def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool) -> Iterator[tuple[RunJob, tuple]]:
+    """(job, `run_job(job)`) for every job as it finishes: in this process when n_jobs <= 1, else in n_jobs spawned
+    worker processes (one thread each)."""
     from tqdm import tqdm
 
-    from expoctl.sim.collect import _single_threaded_children
+    from expoctl.host import single_threaded_children
 
     bar = tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress)
     try:
@@ -376,7 +378,7 @@ def _run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool) -> Iterator[tuple
                 bar.update()
             return
         # spawn: workers load torch (learned controller), which is not fork-safe; one thread each (2-core budget)
-        with _single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
+        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
             futures = {pool.submit(run_job, job): job for job in jobs}
             try:
                 for fut in as_completed(futures):

@@ -16,7 +16,7 @@ import pandas as pd
 
 from expoctl.camera import ranges
 from expoctl.errors import ConfigError, InputError
-from expoctl.labels.targets import METRICS, _require_columns, _where, index_frames
+from expoctl.labels.targets import METRICS, index_frames, require_columns, row_error
 
 SPLITS = ("train", "validation", "test")
 N_INPUT_FRAMES = 3  # t, t−1, t−2: the network's input (paper)
@@ -50,11 +50,11 @@ def sample_id(sequence: str, frame_id: int, cam_t: int, cam_t1: int, cam_t2: int
 
 def sequence_splits(frames: pd.DataFrame, name: str = "frames") -> pd.Series:
     """The one split of each sequence (index: sequence name)."""
-    _require_columns(frames, ("sequence", "frame_id", "split"), name)
+    require_columns(frames, ("sequence", "frame_id", "split"), name)
     df = frames[["sequence", "frame_id", "split"]].astype({"sequence": str})
     bad = ~df["split"].isin(SPLITS)
     if bad.any():
-        raise _where(name, df[bad], f"split must be one of {', '.join(SPLITS)}, got {df['split'][bad].iloc[0]!r}")
+        raise row_error(name, df[bad], f"split must be one of {', '.join(SPLITS)}, got {df['split'][bad].iloc[0]!r}")
     per_seq = df.groupby("sequence", sort=True)["split"].unique()
     mixed = per_seq[per_seq.map(len) > 1]
     if len(mixed):
@@ -71,7 +71,7 @@ def build_samples(frames: pd.DataFrame, labels: pd.DataFrame, cfg: SampleConfig 
     idx = index_frames(frames, names["frames"])
     splits = sequence_splits(frames, names["frames"])
 
-    _require_columns(labels, LABEL_INPUT_COLUMNS, names["labels"])
+    require_columns(labels, LABEL_INPUT_COLUMNS, names["labels"])
     lab = labels[labels["metric"].astype(str) == cfg.metric].copy()
     if lab.empty and len(labels):
         present = ", ".join(sorted(labels["metric"].astype(str).unique()))
@@ -80,23 +80,23 @@ def build_samples(frames: pd.DataFrame, labels: pd.DataFrame, cfg: SampleConfig 
     fid = pd.to_numeric(lab["frame_id"], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
     bad = ~np.isfinite(fid) | (fid != np.round(fid))
     if bad.any():
-        raise _where(names["labels"], lab[bad], "frame_id is not an integer", ("sequence",))
+        raise row_error(names["labels"], lab[bad], "frame_id is not an integer", ("sequence",))
     lab["frame_id"] = fid.astype(np.int64)
     dup = lab.duplicated(["sequence", "frame_id"], keep=False)
     if dup.any():
-        raise _where(names["labels"], lab[dup], f"duplicate {cfg.metric} label")
+        raise row_error(names["labels"], lab[dup], f"duplicate {cfg.metric} label")
     for col, lo, hi in (("gain_db", ranges.GAIN_DB_MIN, ranges.GAIN_DB_MAX),
                         ("exposure_us", ranges.SENSOR_EXPOSURE_US_MIN, ranges.EXPOSURE_US_MAX)):
         v = pd.to_numeric(lab[col], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
         tol = 1e-6 * (hi - lo)
         bad = ~np.isfinite(v) | (v < lo - tol) | (v > hi + tol)
         if bad.any():
-            raise _where(names["labels"], lab[bad], f"{col} is NaN or outside [{lo:g}, {hi:g}]")
+            raise row_error(names["labels"], lab[bad], f"{col} is NaN or outside [{lo:g}, {hi:g}]")
         lab[col] = v
     lab = lab.merge(idx.keys(), on=["sequence", "frame_id"], how="left")
     unknown = lab[lab["row"].isna()]
     if len(unknown):
-        raise _where(names["labels"], unknown, "label for a frame that is not in the frames table")
+        raise row_error(names["labels"], unknown, "label for a frame that is not in the frames table")
 
     # The network needs frames t−1 and t−2 (same sequence): labels at the start of a sequence or after a gap drop.
     has_history = idx.has_behind(N_INPUT_FRAMES - 1)

@@ -130,7 +130,7 @@ class FrameIndex:
         return pd.DataFrame({"sequence": self.sequence, "frame_id": self.frame_id, "row": np.arange(len(self))})
 
 
-def _where(name: str, rows: pd.DataFrame, what: str, cols=("sequence", "frame_id")) -> InputError:
+def row_error(name: str, rows: pd.DataFrame, what: str, cols=("sequence", "frame_id")) -> InputError:
     """An InputError naming the first offending row (and how many more there are)."""
     first = rows.iloc[0]
     label = {"frame_id": "frame"}
@@ -140,7 +140,8 @@ def _where(name: str, rows: pd.DataFrame, what: str, cols=("sequence", "frame_id
     return InputError(f"{name}: {place}: {what}{more}")
 
 
-def _require_columns(df: pd.DataFrame, columns, name: str) -> None:
+def require_columns(df: pd.DataFrame, columns, name: str) -> None:
+    """InputError naming the table `name` if any of `columns` is missing."""
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise InputError(f"{name}: missing column(s) {', '.join(missing)} (has: {', '.join(map(str, df.columns))})")
@@ -150,7 +151,7 @@ def _as_int(df: pd.DataFrame, col: str, name: str, cols) -> np.ndarray:
     v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
     bad = ~np.isfinite(v) | (v != np.round(v))
     if bad.any():
-        raise _where(name, df[bad], f"{col} is not an integer ({df[col][bad].iloc[0]})", cols)
+        raise row_error(name, df[bad], f"{col} is not an integer ({df[col][bad].iloc[0]})", cols)
     return v.astype(np.int64)
 
 
@@ -158,13 +159,13 @@ def _as_count(df: pd.DataFrame, col: str, name: str, cols) -> np.ndarray:
     v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
     bad = ~np.isfinite(v) | (v < 0)
     if bad.any():
-        raise _where(name, df[bad], f"{col} is NaN or negative ({df[col][bad].iloc[0]})", cols)
+        raise row_error(name, df[bad], f"{col} is NaN or negative ({df[col][bad].iloc[0]})", cols)
     return v
 
 
 def index_frames(frames: pd.DataFrame, name: str = "frames") -> FrameIndex:
     """Validate the frames table and pivot it to one row per (sequence, frame_id) with both cameras."""
-    _require_columns(frames, FRAME_COLUMNS, name)
+    require_columns(frames, FRAME_COLUMNS, name)
     cols = ("sequence", "frame_id", "camera")
     df = frames.copy()
     df["sequence"] = df["sequence"].astype(str)
@@ -172,24 +173,24 @@ def index_frames(frames: pd.DataFrame, name: str = "frames") -> FrameIndex:
     df["camera"] = _as_int(df, "camera", name, ("sequence", "frame_id"))
     bad = ~df["camera"].isin(CAMERAS)
     if bad.any():
-        raise _where(name, df[bad], f"camera must be 1 or 2, got {df['camera'][bad].iloc[0]}")
+        raise row_error(name, df[bad], f"camera must be 1 or 2, got {df['camera'][bad].iloc[0]}")
     for col, lo, hi in (("gain_db", ranges.GAIN_DB_MIN, ranges.GAIN_DB_MAX),
                         ("exposure_us", ranges.SENSOR_EXPOSURE_US_MIN, ranges.EXPOSURE_US_MAX)):
         v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
         tol = 1e-6 * (hi - lo)
         bad = ~np.isfinite(v) | (v < lo - tol) | (v > hi + tol)
         if bad.any():
-            raise _where(name, df[bad], f"{col} is NaN or outside the camera range [{lo:g}, {hi:g}] "
-                         f"({df[col][bad].iloc[0]})", cols)
+            raise row_error(name, df[bad], f"{col} is NaN or outside the camera range [{lo:g}, {hi:g}] "
+                            f"({df[col][bad].iloc[0]})", cols)
         df[col] = np.clip(v, lo, hi)
     dup = df.duplicated(list(cols), keep=False)
     if dup.any():
-        raise _where(name, df[dup], "duplicate row for this camera", cols)
+        raise row_error(name, df[dup], "duplicate row for this camera", cols)
     n_cams = df.groupby(["sequence", "frame_id"], sort=False)["camera"].transform("size")
     lonely = df[n_cams != 2]
     if len(lonely):
         present = int(lonely["camera"].iloc[0])
-        raise _where(name, lonely, f"camera {3 - present} missing (every frame needs both cameras)")
+        raise row_error(name, lonely, f"camera {3 - present} missing (every frame needs both cameras)")
     df = df.sort_values(["sequence", "frame_id", "camera"], kind="stable").reset_index(drop=True)
     cam1 = df.iloc[0::2]
     seq = cam1["sequence"].to_numpy()
@@ -214,7 +215,7 @@ def _select_frontend(df: pd.DataFrame, frontend: str, name: str) -> pd.DataFrame
 
 def feature_counts(features: pd.DataFrame, idx: FrameIndex, frontend: str, name: str = "features") -> np.ndarray:
     """(n, 2) feature counts of every frame row and camera; every frame of `idx` must have both."""
-    _require_columns(features, FEATURE_COLUMNS, name)
+    require_columns(features, FEATURE_COLUMNS, name)
     cols = ("sequence", "frame_id", "camera")
     df = _select_frontend(features, frontend, name)
     df["frame_id"] = _as_int(df, "frame_id", name, ("sequence",))
@@ -222,15 +223,15 @@ def feature_counts(features: pd.DataFrame, idx: FrameIndex, frontend: str, name:
     df["n"] = _as_count(df, "n_features", name, cols)
     dup = df.duplicated(list(cols), keep=False)
     if dup.any():
-        raise _where(name, df[dup], f"duplicate {frontend} feature count", cols)
+        raise row_error(name, df[dup], f"duplicate {frontend} feature count", cols)
     want = idx.keys().merge(pd.DataFrame({"camera": list(CAMERAS)}), how="cross")
     both = want.merge(df[list(cols) + ["n"]], on=list(cols), how="outer", indicator=True)
     missing = both[both["_merge"] == "left_only"].sort_values(list(cols))
     if len(missing):
-        raise _where(name, missing, f"no {frontend} feature count for this camera", cols)
+        raise row_error(name, missing, f"no {frontend} feature count for this camera", cols)
     extra = both[both["_merge"] == "right_only"].sort_values(list(cols))
     if len(extra):
-        raise _where(name, extra, "feature count for a frame that is not in the frames table", cols)
+        raise row_error(name, extra, "feature count for a frame that is not in the frames table", cols)
     out = np.empty((len(idx), 2))
     out[both["row"].to_numpy(dtype=np.int64), both["camera"].to_numpy(dtype=np.int64) - 1] = both["n"].to_numpy()
     return out
@@ -238,7 +239,7 @@ def feature_counts(features: pd.DataFrame, idx: FrameIndex, frontend: str, name:
 
 def match_counts(matches: pd.DataFrame, idx: FrameIndex, frontend: str, name: str = "matches") -> np.ndarray:
     """(n, 2, 2) inlier counts [row, cam_from − 1, cam_to − 1] for (t, from) → (t+1, to); NaN where t+1 is absent."""
-    _require_columns(matches, MATCH_COLUMNS, name)
+    require_columns(matches, MATCH_COLUMNS, name)
     cols = ("sequence", "frame_id", "cam_from", "cam_to")
     df = _select_frontend(matches, frontend, name)
     df["frame_id"] = _as_int(df, "frame_id", name, ("sequence",))
@@ -246,20 +247,20 @@ def match_counts(matches: pd.DataFrame, idx: FrameIndex, frontend: str, name: st
         df[c] = _as_int(df, c, name, ("sequence", "frame_id"))
         bad = ~df[c].isin(CAMERAS)
         if bad.any():
-            raise _where(name, df[bad], f"{c} must be 1 or 2, got {df[c][bad].iloc[0]}")
+            raise row_error(name, df[bad], f"{c} must be 1 or 2, got {df[c][bad].iloc[0]}")
     df["n"] = _as_count(df, "n_inliers", name, cols)
     dup = df.duplicated(list(cols), keep=False)
     if dup.any():
-        raise _where(name, df[dup], f"duplicate {frontend} match count", cols)
+        raise row_error(name, df[dup], f"duplicate {frontend} match count", cols)
     df = df.merge(idx.keys(), on=["sequence", "frame_id"], how="left")
     unknown = df[df["row"].isna()].sort_values(list(cols))
     if len(unknown):
-        raise _where(name, unknown, "match count for a frame t that is not in the frames table")
+        raise row_error(name, unknown, "match count for a frame t that is not in the frames table")
     rows = df["row"].to_numpy(dtype=np.int64)
     has_next = idx.has_ahead(1)
     orphan = df[~has_next[rows]].sort_values(list(cols))
     if len(orphan):
-        raise _where(name, orphan, "match count from frame t to t+1, but frame t+1 is not in the frames table")
+        raise row_error(name, orphan, "match count from frame t to t+1, but frame t+1 is not in the frames table")
     out = np.full((len(idx), 2, 2), np.nan)
     out[rows, df["cam_from"].to_numpy() - 1, df["cam_to"].to_numpy() - 1] = df["n"].to_numpy()
     gap = has_next[:, None, None] & np.isnan(out)

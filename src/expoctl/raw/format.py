@@ -197,10 +197,3 @@ def _plain(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
-
-
-def validate_raw_dir(raw_dir: str | os.PathLike, decode_images: bool = True) -> list[str]:
-    """Every problem of every sequence under `raw_dir` (see `expoctl.raw.validate`); empty list = valid."""
-    from expoctl.raw.validate import validate_raw_dir as _validate
-
-    return _validate(raw_dir, decode_images)

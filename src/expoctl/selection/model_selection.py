@@ -48,7 +48,6 @@ from expoctl.selection.saturation_probe import ProbeConfig
 SELECT_LABEL = "select"
 #: reference controllers the selection may drive beside the candidates (for its report; never chosen)
 REFERENCES = tuple(c for c in CONTROLLER_NAMES if c not in ("learned", "oracle"))
-SATURATED_DN = 250
 #: the one city no stage before evaluate may see (the validation city already gives train its validation split)
 HELD_OUT_CITY = "test"
 
@@ -169,7 +168,6 @@ def probe_candidates(cfg: dict, candidates: Sequence[Candidate], project_root: s
                      pcfg: ProbeConfig | None = None) -> dict[str, dict]:
     """The saturation probe's result for each candidate (`SaturationProbe.run`), each network built as evaluate
     builds it (controllers.learned's keys with the candidate's checkpoint)."""
-    from expoctl.controllers.learned import register_learned
     from expoctl.controllers.registry import make_controller
     from expoctl.selection.saturation_probe import make_probe, probe_all
 
@@ -177,7 +175,6 @@ def probe_candidates(cfg: dict, candidates: Sequence[Candidate], project_root: s
     for c in candidates:
         if not Path(c.path).is_file():
             raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
-    register_learned()
     section = dict((cfg.get("controllers") or {}).get("learned") or {})
     probe = make_probe(pcfg, cfg, project_root)
     return probe_all(probe, {c.name: (lambda p=c.path: make_controller("learned", {**section, "checkpoint": str(p)}))
@@ -198,7 +195,7 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
     """Drive every candidate (and the reference) over the selection windows; score; choose (no files written).
 
     One candidate alone is returned without driving anything (nothing to choose between)."""
-    from expoctl.evaluation.runner import RunJob, _run_jobs, city_windows, tune_sumlog_params
+    from expoctl.evaluation.runner import RunJob, city_windows, run_jobs, tune_sumlog_params
     from expoctl.evaluation.aggregate import add_section_ids, section_stats
     from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
@@ -233,7 +230,7 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
     if scfg.reference is not None:
         jobs += [RunJob(w, scfg.reference, cfg, sumlog, label=scfg.reference) for w in windows]
     rows, summaries = [], []
-    for job, (r, s, _thumbs) in _run_jobs(jobs, ecfg.n_jobs, progress):
+    for job, (r, s, _thumbs) in run_jobs(jobs, ecfg.n_jobs, progress):
         rows.extend({**row, "candidate": job.label} for row in r)  # run_id is already job.run_id (named by label)
         summaries.append({**s, "candidate": job.label})
     frames = add_section_ids(pd.DataFrame(rows))

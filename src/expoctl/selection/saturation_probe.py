@@ -26,11 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from expoctl.camera.ranges import exposure_value_ev
+from expoctl.camera.response import SATURATED_DN  # grey level counted as clipped (as evaluate's saturated_frac)
 from expoctl.controllers.agae import split_exposure_first
 from expoctl.controllers.base import Controller, Settings
 from expoctl.errors import ConfigError, InputError
 
-SATURATED_DN = 250  # grey level counted as clipped (as evaluate's saturated_frac)
 AGAE_START = Settings(0.0, 5000.0)  # AG+AE's own start before it settles to the reference level
 
 

@@ -224,7 +224,7 @@ class RigConfig:
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "rig") -> "RigConfig":
         d = _mapping(d, key)
-        _known(d, {"baseline_m", "fps", "perturbation"}, key)
+        reject_unknown_keys(d, {"baseline_m", "fps", "perturbation"}, key)
         kw: dict = {k: _positive(d[k], f"{key}.{k}") for k in ("baseline_m", "fps") if k in d}
         kw["perturbation"] = PerturbationConfig.from_dict(d.get("perturbation"), f"{key}.perturbation")
         return cls(**kw)
@@ -233,7 +233,7 @@ class RigConfig:
 @dataclass(frozen=True)
 class RenderConfig:
     """What the renderer needs (config `world.render`): image size, field of view, and options passed through to
-    `expoctl.world.Renderer.from_config` (glare_fraction, mip_bias, tmax_m, blur, max_subframes; it validates them)."""
+    `expoctl.world.make_renderer` (glare_fraction, mip_bias, tmax_m, blur, max_subframes; it validates them)."""
 
     width: int = 640
     height: int = 480
@@ -261,10 +261,10 @@ class RenderConfig:
         return RenderConfig(width or self.width, height or self.height, self.hfov_deg, self.options)
 
     def make_renderer(self, city):
-        from expoctl.world import Renderer
+        from expoctl.world import make_renderer
 
         cfg = dict(self.options, width=self.width, height=self.height, hfov_deg=self.hfov_deg)
-        return Renderer.from_config(city, cfg)  # validates the options (ConfigError world.render.<key>)
+        return make_renderer(city, cfg)  # validates the options (ConfigError world.render.<key>)
 
 
 def rig_metadata(rig: RigConfig, render: RenderConfig) -> dict:
@@ -339,7 +339,8 @@ def _mapping(d, key: str) -> dict:
     return d
 
 
-def _known(d: dict, known: set[str], key: str) -> None:
+def reject_unknown_keys(d: dict, known: set[str], key: str) -> None:
+    """ConfigError naming `key.<k>` for the first key of `d` not in `known`."""
     for k in d:
         if k not in known:
             raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")

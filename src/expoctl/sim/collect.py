@@ -19,7 +19,6 @@ Config used (whole resolved config): `collect`, `rig`, `sensor`, `world` (cities
 
 from __future__ import annotations
 
-import contextlib
 import os
 import time
 import zlib
@@ -34,13 +33,14 @@ import numpy as np
 from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
+from expoctl.host import single_threaded_children
 from expoctl.sim.closed_loop import (
-    _known,
     RenderConfig,
     RigConfig,
     RouteScene,
     clip_sections,
     make_sensors,
+    reject_unknown_keys,
     rig_metadata,
     run_closed_loop,
 )
@@ -124,8 +124,10 @@ def derive_seed(*parts: int | str) -> int:
 
 def plan_sequences(cfg: dict[str, Any], project_root: str | os.PathLike = ".") -> list[SequenceJob]:
     """The sequences `collect` will write, in order (no rendering). Relative `world.city_dir` is under `project_root`."""
+    from expoctl.world.cities import resolve_city_name
+
     ccfg = CollectConfig.from_dict(cfg.get("collect"))
-    base_seed = _base_seed(cfg)
+    base_seed = config_seed(cfg)
     world = cfg.get("world") or {}
     if not isinstance(world, dict):
         raise ConfigError("world", f"must be a mapping, got {world!r}")
@@ -145,7 +147,7 @@ def plan_sequences(cfg: dict[str, Any], project_root: str | os.PathLike = ".") -
         if split not in cities:
             raise ConfigError(f"world.cities.{split}", f"missing: collect.splits.{split} asks for {scfg.n_sequences} sequences")
         city = cities[split]
-        city_name = _city_name(city, city_dir, f"world.cities.{split}")
+        city_name = resolve_city_name(city, city_dir, f"world.cities.{split}")
         for k in range(scfg.n_sequences):
             index = scfg.first_traversal + k
             jobs.append(SequenceJob(
@@ -195,11 +197,12 @@ def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool | Ca
 def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathLike) -> dict[str, Any]:
     """Render one sequence into `root/<split>/<name>/` and return its summary (runs in a worker process)."""
     from expoctl.controllers.registry import make_controller
+    from expoctl.world import load_city_cached
 
     ccfg = CollectConfig.from_dict(cfg.get("collect"))
     rig = RigConfig.from_dict(cfg.get("rig"))
     render = RenderConfig.from_world(cfg.get("world"))
-    city = _load_city_cached(job.city, job.city_dir)
+    city = load_city_cached(job.city, job.city_dir)
     traj = city.traversal(job.traversal, job.traversal_frames, rig.fps, job.traversal_seed)
     scene = RouteScene(city, traj, rig, render)
     sensors, sensor_log = make_sensors(cfg.get("sensor"), render, 2, ccfg.sensor_randomisation, job.seed)
@@ -265,34 +268,6 @@ def _split_from_dict(name: str, d: Any, key: str) -> SplitConfig:
     )
 
 
-def _city_name(spec: Any, city_dir: str | None, key: str) -> str:
-    """The name of a city (validates it: an unknown name or bad key raises ConfigError under `key`)."""
-    from expoctl.world.cities import city_config
-
-    if not (isinstance(spec, str) and spec) and not isinstance(spec, dict):
-        raise ConfigError(key, f"must be a city name or a city config mapping, got {spec!r}")
-    try:
-        return str(city_config(spec, city_dir)["name"])
-    except ConfigError as exc:
-        sub = exc.key[len("world.city"):] if exc.key.startswith("world.city") else ""
-        raise ConfigError(key + sub, exc.problem) from None
-
-
-_CITY_CACHE: dict[str, Any] = {}
-
-
-def _load_city_cached(spec: str | dict, city_dir: str | None):
-    """One City per spec per process: building a city's texture atlas takes seconds, sequences share it."""
-    import json
-
-    from expoctl.world import load_city
-
-    key = json.dumps([spec, city_dir], sort_keys=True)
-    if key not in _CITY_CACHE:
-        _CITY_CACHE[key] = load_city(spec, city_dir)
-    return _CITY_CACHE[key]
-
-
 def _mapping(d: Any, key: str) -> dict:
     if not isinstance(d, dict):
         raise ConfigError(key, f"missing or not a mapping (got {d!r})")
@@ -300,7 +275,7 @@ def _mapping(d: Any, key: str) -> dict:
 
 
 # the rig config's unknown-key check, shared rather than written twice
-_no_unknown = _known
+_no_unknown = reject_unknown_keys
 
 
 def _require_keys(d: dict, needed: set[str], key: str) -> None:
@@ -323,7 +298,8 @@ def _int(d: dict, k: str, key: str, minimum: int) -> int:
     return v
 
 
-def _base_seed(cfg: dict[str, Any]) -> int:
+def config_seed(cfg: dict[str, Any]) -> int:
+    """The run's base seed, config key `seed` (a non-negative integer; default 0)."""
     seed = cfg.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError("seed", f"must be a non-negative integer, got {seed!r}")
@@ -352,7 +328,7 @@ def _run_jobs(cfg: dict, jobs: list[SequenceJob], root: Path, n_jobs: int, progr
             return
         # spawn (not fork): workers may load torch (learned reference controller), which is not fork-safe;
         # one BLAS/torch thread per worker so n_jobs processes do not oversubscribe the cores
-        with _single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
+        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
             futures = [pool.submit(collect_sequence, cfg, job, root) for job in jobs]
             try:
                 for fut in as_completed(futures):
@@ -364,18 +340,3 @@ def _run_jobs(cfg: dict, jobs: list[SequenceJob], root: Path, n_jobs: int, progr
                 raise
     finally:
         bar.close()
-
-
-@contextlib.contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
-    old = {n: os.environ.get(n) for n in names}
-    os.environ.update({n: "1" for n in names})
-    try:
-        yield
-    finally:
-        for n, v in old.items():
-            if v is None:
-                os.environ.pop(n, None)
-            else:
-                os.environ[n] = v

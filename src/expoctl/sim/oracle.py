@@ -242,8 +242,7 @@ def _factory(params: dict) -> Controller:
 
 
 def register_oracle() -> None:
-    """Add "oracle" to `expoctl.controllers.registry` (explicit, like `register_learned`: it cannot be built from
-    its YAML section alone)."""
+    """Add "oracle" to `expoctl.controllers.registry` (explicit: it cannot be built from its YAML section alone)."""
     from expoctl.controllers.registry import register
 
     register("oracle", _factory)

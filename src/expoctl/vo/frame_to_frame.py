@@ -57,7 +57,8 @@ def intrinsics_matrix(intrinsics: dict, scale: float = 1.0) -> np.ndarray:
     return np.array([[fx * scale, 0.0, (cx + 0.5) * scale - 0.5], [0.0, fy * scale, (cy + 0.5) * scale - 0.5], [0, 0, 1.0]])
 
 
-def _grey(image: np.ndarray, index: int) -> np.ndarray:
+def grey_frame(image: np.ndarray, index: int) -> np.ndarray:
+    """Frame `index` as a grey uint8 image (from H×W×3 RGB or H×W); InputError naming the frame otherwise."""
     a = np.asarray(image)
     if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] == 3)):
         raise InputError(f"vo: frame {index} must be an H×W×3 (or H×W) uint8 image, got {a.dtype} {a.shape}")
@@ -116,7 +117,7 @@ def track_sequence(
     prev = None
     shape = None
     for i, image in enumerate(images):
-        grey = _grey(image, i)
+        grey = grey_frame(image, i)
         if shape is None:
             shape = grey.shape
         elif grey.shape != shape:

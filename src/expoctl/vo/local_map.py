@@ -48,7 +48,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from expoctl.errors import InputError
-from expoctl.vo.frame_to_frame import TrackingResult, _grey, absolute_trajectory_error, relative_pose, relative_pose_error
+from expoctl.vo.frame_to_frame import (TrackingResult, absolute_trajectory_error, grey_frame, relative_pose,
+                                       relative_pose_error)
 
 CHI2_2DOF_95 = 5.991  # ORB-SLAM2's inlier bound on a monocular reprojection error, in units of σ²
 TH_HIGH = 100  # Hamming distance bounds (of 256 bits) for matching by projection and for triangulation
@@ -140,7 +141,7 @@ class MapTracker:
     def step(self, image: np.ndarray) -> int:
         """Track one frame; returns its map-inlier count (0 for the first frame)."""
         self.i += 1
-        grey = _grey(image, self.i)
+        grey = grey_frame(image, self.i)
         if self.shape is None:
             self.shape = grey.shape
         elif grey.shape != self.shape:
