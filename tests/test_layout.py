@@ -176,6 +176,29 @@ def test_no_private_imports_across_modules():
     assert not private, "private names used outside their module:\n" + "\n".join(private)
 
 
+def test_every_package_declares_its_public_names():
+    """Each package's __init__ has an `__all__` listing exactly the public names it binds (imports and definitions)."""
+    for name, path in module_files().items():
+        if path.name != "__init__.py" or name == ROOT_PACKAGE:
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        bound, declared = set(), None
+        for node in tree.body:
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                bound.update((a.asname or a.name).split(".")[0] for a in node.names)
+            elif isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                bound.add(node.name)
+            elif isinstance(node, ast.Assign):
+                for t in node.targets:
+                    if isinstance(t, ast.Name) and t.id == "__all__":
+                        declared = set(ast.literal_eval(node.value))
+                    elif isinstance(t, ast.Name):
+                        bound.add(t.id)
+        bound = {n for n in bound if not n.startswith("_") and n != "annotations"}
+        assert declared is not None, f"{name}: no __all__"
+        assert declared == bound, f"{name}: __all__ {sorted(declared ^ bound)} differ from what __init__ binds"
+
+
 def test_checker_catches_a_cycle_and_a_private_import(tmp_path):
     pkg = tmp_path / ROOT_PACKAGE
     (pkg / "sub").mkdir(parents=True)
