@@ -11,7 +11,7 @@ from expoctl.errors import ConfigError
 from expoctl.evaluation.runner import _windows_of
 from expoctl.evaluation.config import EvaluateConfig, SplitPlan
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_default_yaml_loads():

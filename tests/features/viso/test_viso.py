@@ -13,11 +13,8 @@ from expoctl.features.viso.ransac import ransac_inlier_count
 
 
 def _reference_dir():
-    for base in (Path("/work/shared"), Path(__file__).resolve().parents[3] / "shared"):
-        d = base / "data" / "viso_reference"
-        if (d / "reference.jsonl").exists():
-            return d
-    return None
+    d = Path(__file__).resolve().parents[4] / "shared" / "data" / "viso_reference"  # ../shared beside the repository
+    return d if (d / "reference.jsonl").exists() else None
 
 
 REF_DIR = _reference_dir()
@@ -106,7 +103,7 @@ def _reference_rows():
 @pytest.mark.parametrize("ref", _reference_rows() or [None], ids=lambda r: r["prev"] if r else "absent")
 def test_parity_with_the_original(ref):
     if ref is None:
-        pytest.skip("reference data /work/shared/data/viso_reference is absent")
+        pytest.skip("reference data ../shared/data/viso_reference is absent")
     import cv2
 
     fe = VisoFrontEnd()
