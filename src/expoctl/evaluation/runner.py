@@ -46,7 +46,7 @@ class Window:
     traversal: int
     traversal_seed: int
     traversal_frames: int
-    index: int  # window index within the traversal (see evaluate_config)
+    index: int  # window index within the traversal (see evaluation.config)
     label: str  # e.g. "tunnel 0 passage", "tunnel 1 exit"
     start: int
     stop: int
