@@ -1,4 +1,4 @@
-"""evaluate stage: every controller drives the simulated camera → reports/metrics.json, reports/eval/ (expoctl.evaluation.runner).
+"""evaluate stage: every controller drives the simulated camera → reports/metrics.json, reports/eval/ (expoctl.evaluation).
 
 MLflow: besides the stage run (params, headline metrics, metrics.json), one nested child run per (controller, city)
 tagged controller / city / route_split, with that pair's section statistics, tracking success, VO error and timing

@@ -1,4 +1,4 @@
-"""labels stage: features + matches → data/labels.parquet, reports/labels.md + labels.json (see expoctl.labels.targets)."""
+"""labels stage: features + matches → data/labels.parquet, reports/labels.md + labels.json (see expoctl.labels)."""
 
 from __future__ import annotations
 

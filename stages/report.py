@@ -1,4 +1,4 @@
-"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report.results)."""
+"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report)."""
 
 from __future__ import annotations
 

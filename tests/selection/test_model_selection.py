@@ -1,5 +1,5 @@
-"""expoctl.selection.model_selection: the config, the statistics and rule (exact, on hand-made tables), and a closed-loop
-selection at fixture scale that must reject a network stuck in saturation."""
+"""expoctl.selection.model_selection: the config, the statistics and rule (exact, on hand-made tables), and a
+closed-loop selection at fixture scale that must reject a network stuck in saturation."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ import pytest
 from eval_fixtures import selection_project, use_real_or_test_sensor
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.selection.model_selection import Candidate, SelectConfig, choose, run_statistics, score_candidates, select_model
+from expoctl.selection.model_selection import (Candidate, SelectConfig, choose, run_statistics, score_candidates,
+                                               select_model)
 
 # ------------------------------------------------------------------------------------------------------------ config
 

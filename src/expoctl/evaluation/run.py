@@ -3,7 +3,8 @@
 Per frame t (camera 1 only): the settings the frame was captured with, image statistics, and for each front end
 (ORB, libviso2-style), on the raw grey image and on its SumLog transform, the feature count and the matches /
 inlier matches (NFM) with frame t−1. The whole frame sequence also goes through monocular VO for the tracking-success
-test, twice: frame to frame (`expoctl.vo.frame_to_frame`) and against a local map with ORB-SLAM2's thresholds (`expoctl.vo.local_map`).
+test, twice: frame to frame (`expoctl.vo.frame_to_frame`) and against a local map with ORB-SLAM2's thresholds
+(`expoctl.vo.local_map`).
 Every controller of a window sees the same scene, sensor (same randomised parameters and fixed-pattern noise) and
 per-frame noise seeds, so their differences come from the settings alone.
 """

@@ -30,7 +30,8 @@ from expoctl.net.preprocess import N_INPUT_CHANNELS, as_hw
 
 
 OUTPUTS = ("absolute", "residual")
-# channels of frame t's gain and exposure planes (expoctl.net.preprocess channel order: [R, G, B, gain, exposure] × t, …)
+# channels of frame t's gain and exposure planes
+# (expoctl.net.preprocess channel order: [R, G, B, gain, exposure] × t, …)
 _T_SETTING_CHANNELS = slice(3, 5)
 
 

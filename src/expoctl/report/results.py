@@ -116,8 +116,8 @@ def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bo
 
 def tracking_table(metrics: dict, runs: pd.DataFrame) -> str:
     """Table III: VO tracking successes per controller and split, frame to frame (metrics.json) and, when the runs
-    carry it, against a local map with ORB-SLAM2's thresholds (expoctl.vo.local_map), plus the mean frame-to-frame ATE over
-    successful runs."""
+    carry it, against a local map with ORB-SLAM2's thresholds (expoctl.vo.local_map), plus the mean frame-to-frame ATE
+    over successful runs."""
     splits = [s for s in ("validation", "test") if s in metrics]
     ctrls = ordered({c for s in splits for c in metrics[s]})
     has_map = "vo_map_success" in runs.columns

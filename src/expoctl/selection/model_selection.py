@@ -10,12 +10,12 @@ other stage drives; the test city stays unseen until evaluation. Measured limit:
 seed 2's iteration 2 did not diverge (its divergence needs conditions those traversals lacked), so this stage did not
 catch it and is off by default (README, Results).
 
-First, the saturation probe (`expoctl.selection.saturation_probe`, `select_model.probe`, on by default and cheap: about a
-minute per candidate at 320×240): each candidate starts in closed loop from its AG+AE level and from +6 EV above it,
-on the open road and in a tunnel of the training city's traversal 900. A candidate that ends some start with ≥ 97 %
-of the frame clipped has a saturated fixed point and is dropped (`probe_filter`; if every candidate fails, all stay).
-Every network that diverged in the evaluation failed it; the default seed's final network passes (README, Results).
-With `enabled: false` the last remaining candidate is the final model (the paper's choice among those that pass).
+First, the saturation probe (`expoctl.selection.saturation_probe`, `select_model.probe`, on by default and cheap: about
+a minute per candidate at 320×240): each candidate starts in closed loop from its AG+AE level and from +6 EV above it,
+on the open road and in a tunnel of the training city's traversal 900. A candidate that ends some start with ≥ 97 % of
+the frame clipped has a saturated fixed point and is dropped (`probe_filter`; if every candidate fails, all stay). Every
+network that diverged in the evaluation failed it; the default seed's final network passes (README, Results). With
+`enabled: false` the last remaining candidate is the final model (the paper's choice among those that pass).
 
 With `enabled: true` the remaining candidates then drive the selection windows; the rule, lexicographic (`choose`):
 1. most windows on which VO keeps tracking;

@@ -1,12 +1,12 @@
 """Monocular tracking against a local map, with ORB-SLAM2's tracking thresholds (the VO robustness test, stricter form).
 
-Why a second tracker: `expoctl.vo.frame_to_frame` asks only that two consecutive frames share enough essential-matrix inliers. The
-paper's VO, ORB-SLAM2, tracks each frame against a *map*: 3-D points triangulated from earlier keyframes, matched by
-projection with the descriptor they were last observed with, and it is lost when fewer than 30 of them survive the
-frame's pose optimisation (TrackLocalMap). A point enters the map only after it matched between two keyframes with
-enough parallax, so the test also asks that features persist through an exposure change, not only between the two
-frames of one pair. The paper's numbers show the difference: ORB-SLAM2 failed on every AG+AE run whose mean minimum
-frame-to-frame ORB NFM was 54–63 (Table II–III), far above the 15–20 of a frame-to-frame test.
+Why a second tracker: `expoctl.vo.frame_to_frame` asks only that two consecutive frames share enough essential-matrix
+inliers. The paper's VO, ORB-SLAM2, tracks each frame against a *map*: 3-D points triangulated from earlier keyframes,
+matched by projection with the descriptor they were last observed with, and it is lost when fewer than 30 of them
+survive the frame's pose optimisation (TrackLocalMap). A point enters the map only after it matched between two
+keyframes with enough parallax, so the test also asks that features persist through an exposure change, not only between
+the two frames of one pair. The paper's numbers show the difference: ORB-SLAM2 failed on every AG+AE run whose mean
+minimum frame-to-frame ORB NFM was 54–63 (Table II–III), far above the 15–20 of a frame-to-frame test.
 
 What is kept of ORB-SLAM2's tracking thread (facts from its paper and documented parameters, no code):
 - 2,000 ORB features per frame, 8 levels, scale 1.2 (its KITTI setting); per-level σ = 1.2^level px.
