@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.errors import InputError  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
-from expoctl.rig.raw import find_sequences, read_frames_csv  # noqa: E402
+from expoctl.raw.format import find_sequences, read_frames_csv  # noqa: E402
 
 AUTHORS = {"median": (0.015, 0.033), "p99": (0.16, 0.29), "max": 0.5}
 EV_PER_DB = 1.0 / (20.0 * np.log10(2.0))

@@ -39,7 +39,7 @@ from expoctl.controllers.agae import AgAeController  # noqa: E402
 from expoctl.controllers.base import Settings  # noqa: E402
 from expoctl.errors import ConfigError, InputError  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
-from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
+from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
 from expoctl.world import load_world_city  # noqa: E402
 from stages.compose import compose_config  # noqa: E402
 

@@ -33,7 +33,7 @@ sys.path[:0] = [str(ROOT / "src"), str(ROOT)]
 from agae_calibration import AUTHORS, EV_PER_DB, step_stats  # noqa: E402
 
 from expoctl.errors import ConfigError, InputError  # noqa: E402
-from expoctl.evaluate import evaluate  # noqa: E402
+from expoctl.evaluation.runner import evaluate  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
 from stages.compose import compose_config  # noqa: E402

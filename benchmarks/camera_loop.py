@@ -46,8 +46,8 @@ def default_model(dest: Path, input_size: int) -> Path:
     """conf/model/default.yaml's architecture at `input_size`, untrained, saved the way `train` saves one (+ ONNX)."""
     import torch
 
-    from expoctl.model import ExposureNet, ModelConfig
-    from expoctl.train import CHECKPOINT_FORMAT, export_onnx
+    from expoctl.net.model import ExposureNet, ModelConfig
+    from expoctl.net.checkpoint import CHECKPOINT_FORMAT, export_onnx
 
     d = yaml.safe_load((ROOT / "conf" / "model" / "default.yaml").read_text())
     cfg = ModelConfig.from_dict(dict(d, input_size=input_size))

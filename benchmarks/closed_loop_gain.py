@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/closed_loop_gain.py --data data/iter2 models/controller.pt models/controller_iter2.pt
 
-The probe (expoctl.camera_follow, which also gives train.json its val_follow) is open-loop, on the validation
+The probe (expoctl.net.follow, which also gives train.json its val_follow) is open-loop, on the validation
 split of a samples table: c111 and c222 share one label but differ in their input settings. follow 0 = the network
 reads the scene from the image, 1 = it holds its input settings; bias = its median step from the reference camera's
 state; offset = bias / (1 − follow), the linearised closed-loop fixed point above the reference.
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import torch
 
-from expoctl.camera_follow import MIN_INPUT_DIFFERENCE_EV, camera_follow
+from expoctl.net.follow import MIN_INPUT_DIFFERENCE_EV, camera_follow
 from expoctl.controllers.learned import LearnedController
-from expoctl.dataset import load_sample_sets_from_files
+from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.io import write_json
 
 ROOT = Path(__file__).resolve().parents[1]

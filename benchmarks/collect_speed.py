@@ -24,8 +24,8 @@ def bench(width: int, height: int, n_frames: int) -> dict:
     from expoctl.controllers.registry import make_controller
     import yaml
 
-    from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, sensor_rng
-    from expoctl.rig.protocol import perturb
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, sensor_rng
+    from expoctl.sim.protocol import perturb
     from expoctl.world import load_city
 
     root = Path(__file__).resolve().parents[1]

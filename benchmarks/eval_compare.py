@@ -96,13 +96,13 @@ def main() -> int:
     print()
     print(transition_depth(all_sections))
     # VO margin over the pooled runs: each run's worst frame pair (tracked inliers), runs tracked at stricter thresholds
-    from expoctl.report import vo_margin_table
+    from expoctl.report.results import vo_margin_table
 
     runs = load(specs, "runs")
     print()
     print(vo_margin_table(runs))
     if "vo_map_min_inliers" in runs.columns:
-        # the local-map tracker (expoctl.vo_map): successes per city, then each run's fewest map inliers
+        # the local-map tracker (expoctl.vo.local_map): successes per city, then each run's fewest map inliers
         print()
         print(runs.groupby(["route_split", "controller"]).vo_map_success.agg(
             lambda v: f"{int(v.astype(bool).sum())}/{len(v)}").rename("map-tracking VO successes").to_string())
@@ -113,14 +113,14 @@ def main() -> int:
     return 0
 
 
-#: the map tracker's default bootstrap length (expoctl.vo_map): frames before it only build the map
+#: the map tracker's default bootstrap length (expoctl.vo.local_map): frames before it only build the map
 MAP_SCORED_FROM = 8
 
 
 def map_fill_and_late_margins(frames: pd.DataFrame, runs: pd.DataFrame, first: int) -> str:
     """How fast the map fills (median map inliers over runs by frame index), then the map-VO margins scored from frame
     `first` on, leaving out runs that were lost before it (evaluations made with a shorter bootstrap)."""
-    from expoctl.report import vo_margin_table
+    from expoctl.report.results import vo_margin_table
 
     fill = frames[frames.frame <= 10].groupby("frame").vo_map_n_inliers.median()
     lines = ["median map inliers by frame: " + ", ".join(f"{int(k)}: {v:.0f}" for k, v in fill.dropna().items())]

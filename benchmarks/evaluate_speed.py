@@ -43,7 +43,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/evaluate_speed.json"))
     args = ap.parse_args()
 
-    from expoctl.evaluate import RunJob, plan_windows, run_job
+    from expoctl.evaluation.runner import RunJob, plan_windows, run_job
     from expoctl.features.sumlog import SumLogParams
 
     rows = []

@@ -6,13 +6,13 @@ For every (route split, controller) of an evaluation it prints:
 - the frames more than 50 % saturated (grey ≥ 250) in each exit window (frames from 2.5 s before to 4 s after an exit
   portal: the most saturated frames come just before it, when the opening fills the view), per run, and the longest
   such run of consecutive frames;
-- VO successes, frame to frame and against the local map (`expoctl.vo`, `expoctl.vo_map`).
+- VO successes, frame to frame and against the local map (`expoctl.vo.frame_to_frame`, `expoctl.vo.local_map`).
 
 Two modes:
     .venv/bin/python benchmarks/exit_measure.py summarise REPORTS_EVAL_DIR [...]
         summarise evaluate outputs already written (reports/eval/ of a `dvc repro`);
     .venv/bin/python benchmarks/exit_measure.py run --case NAME OVERRIDE [OVERRIDE ...] [--case NAME ...]
-        run the evaluation (expoctl.evaluate) for each case, with evaluate.controllers=[agae,fixed,mean_intensity]
+        run the evaluation (expoctl.evaluation.runner) for each case, with evaluate.controllers=[agae,fixed,mean_intensity]
         unless an override says otherwise (--keep DIR also writes each case's outputs to DIR/NAME), in this project (its train split must have been collected: evaluate tunes
         SumLog on it), and summarise. Example: --case underpass world.cities.test=underpass ~evaluate.splits.validation
 
@@ -139,7 +139,7 @@ def main() -> int:
             for d in args.eval_dirs:
                 results[str(d)] = summarise(*load_eval_dir(d))
         else:
-            from expoctl.evaluate import evaluate, write_outputs
+            from expoctl.evaluation.runner import evaluate, write_outputs
             from stages.compose import compose_config
 
             for name, *overrides in args.case:

@@ -5,7 +5,7 @@
 Part 1 — the inverted U. At fixed poses of a traversal of the `train` city (`open_road`: the point farthest from any
 tunnel, in sun or overcast as the traversal draws; `tunnel`: middle of the first tunnel, lamps only, the exit portal
 in view ahead; `exit`: 1.5 s before leaving it) the pair (t, t+1) is rendered with motion blur over each exposure
-and captured with the EMVA sensor at every setting of the sweep (expoctl.rig.exposure_sweep: 75 µs–30 ms at 0 dB in
+and captured with the EMVA sensor at every setting of the sweep (expoctl.sim.exposure_sweep: 75 µs–30 ms at 0 dB in
 `--step-ev` stops, continued with gain at 30 ms where the 30 ms frame is still mostly unclipped). For ORB and the
 libviso2-style front end (conf/features) it reports inliers per setting, the argmax and the 90 %-of-max plateau, and
 the peak's shift from the open road in EV next to log2 of the scenes' median (and 95th-percentile) luminance ratio.
@@ -41,8 +41,8 @@ from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX 
 from expoctl.features.pipeline import make_frontend  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
-from expoctl.rig import exposure_sweep as xs  # noqa: E402
-from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors  # noqa: E402
+from expoctl.sim import exposure_sweep as xs  # noqa: E402
+from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
 
 POSES = ("open_road", "tunnel", "exit")

@@ -6,7 +6,7 @@
 
 The same subset, seed and hyperparameters at every size; only `model.input_size` changes (images are resized from
 the store by the shared preprocessing, the 4th conv's kernel is computed). Without pipeline data it generates the
-synthetic set of `expoctl.synthetic_data` at 224×224 (say so when quoting the numbers). Writes
+synthetic set of `tests.support.synthetic_data` at 224×224 (say so when quoting the numbers). Writes
 benchmarks/results/input_size_error.json.
 """
 
@@ -14,16 +14,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-from expoctl.dataset import load_sample_sets_from_files
-from expoctl.model import ModelConfig
-from expoctl.synthetic_data import make_synthetic_dataset
-from expoctl.train import TrainConfig, fit
-
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # for tests.support.synthetic_data (test support code, not part of the library)
+
+from expoctl.net.dataset import load_sample_sets_from_files  # noqa: E402
+from expoctl.net.model import ModelConfig  # noqa: E402
+from expoctl.net.train import TrainConfig, fit  # noqa: E402
+from tests.support.synthetic_data import make_synthetic_dataset  # noqa: E402
 
 
 def main() -> None:
@@ -50,7 +52,7 @@ def main() -> None:
         tmp = tempfile.TemporaryDirectory()
         paths = make_synthetic_dataset(tmp.name, n_sequences=8, n_frames=40, hw=(224, 224), seed=args.seed)
         args.samples, args.frames, args.images_dir = paths["samples"], paths["frames"], paths["images_dir"]
-        source = "synthetic (expoctl.synthetic_data, 8 sequences × 40 frames, 224×224 store)"
+        source = "synthetic (tests.support.synthetic_data, 8 sequences × 40 frames, 224×224 store)"
     cfg = TrainConfig(lr=args.lr, batch_size=args.batch_size, epochs=args.epochs, patience=args.epochs,
                       num_threads=args.threads, max_train_samples=args.max_train, max_validation_samples=args.max_val)
     rows = []

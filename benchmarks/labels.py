@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from expoctl.label_report import compute_label_stats, render_markdown
-from expoctl.labels import compute_labels
-from expoctl.samples import build_samples
+from expoctl.labels.report import compute_label_stats, render_markdown
+from expoctl.labels.targets import compute_labels
+from expoctl.labels.samples import build_samples
 
 
 def make_tables(n_seq: int, n_frames: int, seed: int = 0):

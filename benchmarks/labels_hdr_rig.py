@@ -1,8 +1,8 @@
 """Label statistics on a small image-based dual-camera rig: do our labels behave like the authors' (quality check)?
 
 Until the full simulator feeds the pipeline, this drives the real pieces that matter for labelling — the AG+AE
-reference controller (expoctl.controllers.agae), the paper's perturbation of camera 2 (expoctl.rig.protocol), the
-closed loop with the t → t+1 latency (expoctl.rig.closed_loop) and the ORB front end (expoctl.features) — over a
+reference controller (expoctl.controllers.agae), the paper's perturbation of camera 2 (expoctl.sim.protocol), the
+closed loop with the t → t+1 latency (expoctl.sim.closed_loop) and the ORB front end (expoctl.features) — over a
 panning crop of real HDR radiance maps (../shared/data/hdri), with a global light drop of 6 EV and back (a crude
 tunnel: entry over 10 frames, exit over 5). The sensor is a plain linear model written here (shot and read noise,
 full well, gain, 8-bit sRGB); no motion blur, no parallax between the two cameras. Then labels + label report.
@@ -27,10 +27,10 @@ import pandas as pd
 from expoctl.controllers.agae import AgAeController
 from expoctl.controllers.base import Settings
 from expoctl.features.pipeline import make_frontend, pair_seed, rgb_to_grey
-from expoctl.label_report import compute_label_stats, render_markdown
-from expoctl.labels import LabelConfig, compute_labels
-from expoctl.rig.closed_loop import FunctionScene, run_closed_loop
-from expoctl.rig.protocol import PerturbationConfig
+from expoctl.labels.report import compute_label_stats, render_markdown
+from expoctl.labels.targets import LabelConfig, compute_labels
+from expoctl.sim.closed_loop import FunctionScene, run_closed_loop
+from expoctl.sim.protocol import PerturbationConfig
 
 HDRI = Path(__file__).resolve().parents[2] / "shared" / "data" / "hdri"
 SCENES = ("peppermint_powerplant_1k", "modern_buildings_2_1k", "autoshop_01_1k")

@@ -47,10 +47,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.camera.calibration import (  # noqa: E402
-    FLOOR_DN, SATURATED_DN, ParametricResponse, code_histogram, TabulatedResponse, adc_code_lut, fit_exposure_scale,
+    FLOOR_DN, ParametricResponse, code_histogram, TabulatedResponse, adc_code_lut, fit_exposure_scale,
     fit_parametric_response, load_bracketed_stack, merge_radiance, monotone_log_response, noise_free_codes,
     plateau_brackets, recover_response, reexpose, rmse_percent, valid_mask, estimate_noise_sigma,
     rmse_after_code_bias, local_shift_fit)
+from expoctl.camera.response import SATURATED_DN  # noqa: E402
 from expoctl.camera.sensor import Sensor, SensorConfig  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 

@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from expoctl.model import ExposureNet, ModelConfig, count_macs, count_parameters
-from expoctl.train import export_onnx, weighted_l1
+from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
+from expoctl.net.train import weighted_l1
+from expoctl.net.checkpoint import export_onnx
 
 
 def _median_seconds(fn, repeats: int, warmup: int = 3) -> float:

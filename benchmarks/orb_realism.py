@@ -33,7 +33,7 @@ from expoctl.features.orb import OrbFrontEnd  # noqa: E402
 from expoctl.features.pipeline import rgb_to_grey  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
-from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
+from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
 
 SPEC_RANGE = (120, 280)

@@ -31,7 +31,7 @@ sys.path[:0] = [str(ROOT / "src"), str(ROOT)]
 from bench_meta import run_metadata  # noqa: E402
 
 from expoctl.io import write_json, write_text  # noqa: E402
-from expoctl.report_figures import label, ordered  # noqa: E402
+from expoctl.report.figures import label, ordered  # noqa: E402
 
 FRONTENDS = ("orb", "viso", "orb_sumlog", "viso_sumlog")
 FRONTEND_TITLE = {"orb": "ORB", "viso": "libviso2-style", "orb_sumlog": "ORB + SumLog",

@@ -8,10 +8,10 @@ also meets states its data never contain, and the worst of them is a saturated f
 scene, so nothing in the image tells the network how far to step down. If its step there is about zero, saturation
 is an absorbing state and the controller stays white.
 
-The probe itself is `expoctl.saturation_probe` (the select_model stage runs the same probe on every candidate; the
-protocol is in that module's docstring): train city, traversal 900 (no stage collects or evaluates it), 320×240, the
-project's conf/ defaults for world, rig, sensor and AG+AE. This script runs it for any checkpoints over a wider set
-of offsets, prints the table and writes benchmarks/results/saturation_recovery.json.
+The probe itself is `expoctl.selection.saturation_probe` (the select_model stage runs the same probe on every candidate;
+the protocol is in that module's docstring): train city, traversal 900 (no stage collects or evaluates it), 320×240, the
+project's conf/ defaults for world, rig, sensor and AG+AE. This script runs it for any checkpoints over a wider set of
+offsets, prints the table and writes benchmarks/results/saturation_recovery.json.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.controllers.learned import LearnedController  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
-from expoctl.saturation_probe import ProbeConfig, make_probe  # noqa: E402
+from expoctl.selection.saturation_probe import ProbeConfig, make_probe  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
 
 

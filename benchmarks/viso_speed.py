@@ -21,7 +21,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 STAGES = ["filters", "nms", "descriptors", "matching", "delaunay", "ransac"]
-REF_CANDIDATES = [Path("/work/shared/data/viso_reference"), REPO.parent / "shared" / "data" / "viso_reference"]
+REF_CANDIDATES = [REPO.parent / "shared" / "data" / "viso_reference"]
 PAIRS_640 = [
     ("basketball1.png", "basketball2.png"),
     ("Blender_Suzanne1.jpg", "Blender_Suzanne2.jpg"),

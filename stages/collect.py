@@ -1,4 +1,4 @@
-"""collect stage: drive the simulated dual-camera rig → data/raw/<split>/<sequence>/ (see expoctl.rig.collect)."""
+"""collect stage: drive the simulated dual-camera rig → data/raw/<split>/<sequence>/ (see expoctl.sim.collect)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import logging
 import sys
 import time
 
-from expoctl.rig.collect import collect
+from expoctl.sim.collect import collect
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)

@@ -1,4 +1,4 @@
-"""evaluate stage: every controller drives the simulated camera → reports/metrics.json, reports/eval/ (expoctl.evaluate).
+"""evaluate stage: every controller drives the simulated camera → reports/metrics.json, reports/eval/ (expoctl.evaluation).
 
 MLflow: besides the stage run (params, headline metrics, metrics.json), one nested child run per (controller, city)
 tagged controller / city / route_split, with that pair's section statistics, tracking success, VO error and timing
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from expoctl.evaluate import evaluate, metrics_summary, write_outputs
+from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
 from expoctl.host import host_cpu
 from stages.common import PROJECT_ROOT, stage_main
 
@@ -84,7 +84,7 @@ def log_child_runs(result, tracker) -> list[str]:
     """One nested MLflow run per (controller, city) under the active stage run; returns their run ids."""
     import mlflow
 
-    from expoctl.report_figures import controller_timeline
+    from expoctl.report.figures import controller_timeline
 
     if mlflow.active_run() is None:  # a fake tracker in tests: nothing to nest under
         return []

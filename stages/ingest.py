@@ -1,11 +1,11 @@
-"""ingest stage: data/raw/ → data/frames.parquet + data/images/ (see expoctl.ingest)."""
+"""ingest stage: data/raw/ → data/frames.parquet + data/images/ (see expoctl.raw.ingest)."""
 
 from __future__ import annotations
 
 import logging
 import time
 
-from expoctl.ingest import IngestConfig, ingest
+from expoctl.raw.ingest import IngestConfig, ingest
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)

@@ -10,8 +10,8 @@ import pandas as pd
 
 from expoctl.errors import InputError
 from expoctl.io import write_json, write_parquet, write_text
-from expoctl.label_report import compute_label_stats, flat_metrics, render_markdown
-from expoctl.labels import LabelConfig, compute_labels
+from expoctl.labels.report import compute_label_stats, flat_metrics, render_markdown
+from expoctl.labels.targets import LabelConfig, compute_labels
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from expoctl.report import ReportConfig, build_report
+from expoctl.report.results import ReportConfig, build_report
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)

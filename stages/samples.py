@@ -1,4 +1,4 @@
-"""samples stage: frames + labels → data/samples.parquet (see expoctl.samples)."""
+"""samples stage: frames + labels → data/samples.parquet (see expoctl.labels.samples)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import logging
 
 from expoctl.errors import InputError
 from expoctl.io import write_parquet
-from expoctl.samples import SampleConfig, build_samples, summarise_samples
+from expoctl.labels.samples import SampleConfig, build_samples, summarise_samples
 from stages.common import PROJECT_ROOT, stage_main
 from stages.labels import read_table
 

@@ -1,5 +1,5 @@
 """select_model stage: every iteration's network drives the training city in closed loop and the best one becomes the
-pipeline's final model, `paths.final_model` (+ its .onnx), which evaluate drives (expoctl.model_selection).
+pipeline's final model, `paths.final_model` (+ its .onnx), which evaluate drives (expoctl.selection.model_selection).
 
 Candidates: iteration 1's network and that of every enabled later iteration (a disabled iteration's model is a copy
 of the previous one). First the saturation probe (`select_model.probe`, on by default) drops every candidate with a
@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 
 from expoctl.errors import InputError
-from expoctl.saturation_probe import summary_line
-from expoctl.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
+from expoctl.selection.saturation_probe import summary_line
+from expoctl.selection.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
 from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)

@@ -73,7 +73,7 @@ def sample_trial(space: dict, seed: int, trial: int) -> dict:
 
 def apply_trial(cfg: dict, values: dict) -> tuple[dict, list[str]]:
     """The config with the trial's values set, and the equivalent Hydra overrides (concrete widths)."""
-    from expoctl.model import ModelConfig, scale_widths
+    from expoctl.net.model import ModelConfig, scale_widths
 
     cfg = copy.deepcopy(cfg)
     for key, value in values.items():

@@ -26,11 +26,12 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
-from expoctl.dataset import load_sample_sets_from_files
+from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import InputError
 from expoctl.io import write_json
-from expoctl.model import ModelConfig
-from expoctl.train import TrainConfig, checkpoint_dict, export_onnx, fit, predict
+from expoctl.net.model import ModelConfig
+from expoctl.net.train import TrainConfig, fit, predict
+from expoctl.net.checkpoint import checkpoint_dict, export_onnx
 
 log = logging.getLogger("expoctl.train")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from expoctl.rig.closed_loop import FunctionScene
+from expoctl.sim.closed_loop import FunctionScene
 
 K_DN = 25.6  # DN per (cd/m² · s · linear gain): 1000 cd/m² at 5 ms, 0 dB → 128 DN
 
@@ -60,8 +60,9 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
     import torch
 
     from expoctl.io import write_png
-    from expoctl.model import ExposureNet, ModelConfig
-    from expoctl.train import TrainConfig, TrainResult, checkpoint_dict
+    from expoctl.net.model import ExposureNet, ModelConfig
+    from expoctl.net.train import TrainConfig, TrainResult
+    from expoctl.net.checkpoint import checkpoint_dict
 
     root = Path(root)
     rows = []
@@ -114,7 +115,8 @@ def constant_network(src, dst, gain_db: float, exposure_us: float, onnx: bool = 
     import torch
 
     from expoctl.camera.ranges import exposure_to_norm, gain_to_norm
-    from expoctl.train import TrainConfig, TrainResult, checkpoint_dict, export_onnx, load_checkpoint
+    from expoctl.net.train import TrainConfig, TrainResult
+    from expoctl.net.checkpoint import checkpoint_dict, export_onnx, load_checkpoint
 
     model, ckpt = load_checkpoint(src)
     out = model.head[-1]
@@ -132,7 +134,7 @@ def selection_project(root) -> tuple[dict, list]:
     a well-exposing one (iteration 1) and one stuck in saturation (iteration 2). Returns (config, candidates)."""
     from pathlib import Path
 
-    from expoctl.model_selection import Candidate
+    from expoctl.selection.model_selection import Candidate
 
     root = Path(root)
     cfg = make_fixture_project(root, controllers=["agae", "learned"])
@@ -161,7 +163,7 @@ def use_real_or_test_sensor(monkeypatch) -> str:
 
         return "real"
     except ImportError:
-        import expoctl.rig.closed_loop as cl
+        import expoctl.sim.closed_loop as cl
 
         monkeypatch.setattr(cl, "make_sensors", lambda cfg, render, n, amp, seed: ([LinearSensor(2.0)] * n, {}))
         return "linear stand-in"

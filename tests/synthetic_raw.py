@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from expoctl.rig.raw import SequenceWriter
+from expoctl.raw.format import SequenceWriter
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED = PROJECT_ROOT.parent / "shared"

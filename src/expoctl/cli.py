@@ -20,9 +20,9 @@ import sys
 from expoctl.errors import InputError
 
 SUBCOMMANDS = {
-    "validate": ("expoctl.rig.validate_cli", "check raw dual-camera sequences"),
+    "validate": ("expoctl.raw.validate_cli", "check raw dual-camera sequences"),
     "match": ("expoctl.features.match_cli", "count features and inlier matches of one image pair"),
-    "preview": ("expoctl.rig.preview", "render a route under a controller to a contact sheet"),
+    "preview": ("expoctl.sim.preview", "render a route under a controller to a contact sheet"),
     "drive": ("expoctl.cameras.drive_cli", "drive a real camera in closed loop with a controller"),
     "record": ("expoctl.cameras.record_cli", "record dual-camera training data on two real cameras"),
     "cameras": ("expoctl.cameras.list_cli", "list the cameras found"),

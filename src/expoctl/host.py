@@ -8,7 +8,10 @@ decides its code generation; the model name is for people.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import platform
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -34,3 +37,20 @@ def numba_target_cpu() -> str:
 def host_cpu() -> str:
     """One line naming the host CPU: '<numba target> (<model name>)', e.g. 'znver3 (AMD EPYC)'."""
     return f"{numba_target_cpu()} ({cpu_model_name()})"
+
+
+@contextlib.contextmanager
+def single_threaded_children() -> Iterator[None]:
+    """One BLAS / OpenMP / numba thread in the processes started inside the block (they inherit the environment), so
+    n worker processes do not oversubscribe the cores; the environment is restored on exit."""
+    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+    old = {n: os.environ.get(n) for n in names}
+    os.environ.update({n: "1" for n in names})
+    try:
+        yield
+    finally:
+        for n, v in old.items():
+            if v is None:
+                os.environ.pop(n, None)
+            else:
+                os.environ[n] = v

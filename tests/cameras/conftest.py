@@ -115,8 +115,8 @@ def tiny_model(tmp_path_factory) -> Path:
     """A small network built with the library's model class and saved the way `train` saves one (+ ONNX)."""
     import torch
 
-    from expoctl.model import ExposureNet, ModelConfig
-    from expoctl.train import CHECKPOINT_FORMAT, export_onnx
+    from expoctl.net.model import ExposureNet, ModelConfig
+    from expoctl.net.checkpoint import CHECKPOINT_FORMAT, export_onnx
 
     cfg = ModelConfig(input_size=(24, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(4, 4, 4, 4),
                       fc_widths=(4, 4, 4), exposure_scale="log", output="residual")

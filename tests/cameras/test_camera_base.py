@@ -19,8 +19,8 @@ from expoctl.cameras.base import (
 )
 from expoctl.cameras.live import ActuationDelay, LiveRig
 from expoctl.controllers.base import Controller, Settings
-from expoctl.rig.closed_loop import drive_rig
-from expoctl.rig.protocol import PerturbationConfig, perturb
+from expoctl.sim.closed_loop import drive_rig
+from expoctl.sim.protocol import PerturbationConfig, perturb
 
 
 def _mosaic(rgb: np.ndarray, tile: str) -> np.ndarray:
@@ -215,7 +215,7 @@ def test_controller_params_for_a_camera(tmp_path):
 
 def test_background_writer_keeps_order_and_reports_a_write_error(tmp_path):
     from expoctl.cameras.session import BackgroundWriter
-    from expoctl.rig.raw import SequenceWriter
+    from expoctl.raw.format import SequenceWriter
 
     img = np.zeros((4, 6, 3), np.uint8)
     w = BackgroundWriter(SequenceWriter(tmp_path / "seq", {"source": "rig"}), max_queued=2)

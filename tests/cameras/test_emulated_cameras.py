@@ -18,8 +18,8 @@ from emulated import GAIN_DB_PER_RAW, camera_args
 
 from expoctl.controllers.base import Settings
 from expoctl.errors import InputError
-from expoctl.ingest import IngestConfig, ingest
-from expoctl.rig.protocol import PerturbationConfig, perturb
+from expoctl.raw.ingest import IngestConfig, ingest
+from expoctl.sim.protocol import PerturbationConfig, perturb
 
 
 def _validate(path: Path) -> subprocess.CompletedProcess:

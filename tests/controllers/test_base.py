@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from expoctl.controllers.base import Controller, DelayedController, Settings
-from expoctl.rig.closed_loop import FunctionScene, run_closed_loop
+from expoctl.sim.closed_loop import FunctionScene, run_closed_loop
 
 
 class FrameStamp(Controller):

@@ -9,11 +9,11 @@ from torch import nn
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Settings
-from expoctl.controllers.learned import LearnedController, exposure_first, make_learned, register_learned
-from expoctl.controllers.registry import CONTROLLERS, make_controller
+from expoctl.controllers.learned import LearnedController, exposure_first, make_learned
+from expoctl.controllers.registry import make_controller
 from expoctl.errors import ConfigError
-from expoctl.model import ExposureNet, ModelConfig
-from expoctl.train import CHECKPOINT_FORMAT, export_onnx
+from expoctl.net.model import ExposureNet, ModelConfig
+from expoctl.net.checkpoint import CHECKPOINT_FORMAT, export_onnx
 
 CFG = ModelConfig(input_size=(24, 24), conv_kernels=(3, 3, 3), pool=2, conv_widths=(4, 4, 4, 4), fc_widths=(4, 4, 4))
 
@@ -108,11 +108,7 @@ def test_checkpoint_backends_agree_and_registry(tmp_path):
     export_onnx(model, tmp_path / "controller.onnx")
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (120, 160, 3), dtype=np.uint8) for _ in range(5)]
-    register_learned()
-    try:
-        _run_backends(tmp_path, frames)
-    finally:
-        CONTROLLERS.pop("learned", None)  # leave the registry as other tests expect it
+    _run_backends(tmp_path, frames)  # "learned" is in the registry from the start (built lazily: torch, checkpoint)
 
 
 def _run_backends(tmp_path, frames):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import yaml
 
-from expoctl.rig.raw import validate_raw_dir
+from expoctl.raw.validate import validate_raw_dir
 from stages import collect as stage
 from fake_tracker import FakeTracker
 

@@ -9,8 +9,8 @@ import pytest
 from eval_fixtures import make_fixture_project, use_real_or_test_sensor
 
 from expoctl.errors import InputError
-from expoctl.evaluate_aggregate import validate_metrics
-from expoctl.evaluate_config import CONTROLLER_NAMES
+from expoctl.evaluation.aggregate import validate_metrics
+from expoctl.evaluation.config import CONTROLLER_NAMES
 from fake_tracker import FakeTracker
 
 

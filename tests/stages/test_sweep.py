@@ -13,7 +13,7 @@ import yaml
 
 from expoctl.errors import ConfigError
 from expoctl.host import host_cpu
-from expoctl.synthetic_data import make_synthetic_dataset
+from tests.support.synthetic_data import make_synthetic_dataset
 from stages.sweep import apply_trial, sample_trial
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -16,8 +16,8 @@ import torch
 import yaml
 
 from expoctl.errors import ConfigError
-from expoctl.synthetic_data import make_synthetic_dataset
-from expoctl.train import load_checkpoint
+from tests.support.synthetic_data import make_synthetic_dataset
+from expoctl.net.checkpoint import load_checkpoint
 from stages import train as stage
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -63,7 +63,7 @@ def test_stage_writes_model_onnx_report_and_logs_to_mlflow(tmp_path, mlflow_stor
     data = client.get_run(run_id).data
     assert "final.baseline_val_exposure_mae_ev" in data.metrics and "final.improvement_gain_db" in data.metrics
     assert data.metrics["final.val_loss"] == pytest.approx(report["val_loss"])
-    # the closed-loop amplification probe rides along (expoctl.camera_follow), in the report and in MLflow
+    # the closed-loop amplification probe rides along (expoctl.net.follow), in the report and in MLflow
     assert math.isfinite(report["val_follow"])
     assert data.metrics["final.val_follow"] == pytest.approx(report["val_follow"])
     exp = client.get_run(run_id).info.experiment_id

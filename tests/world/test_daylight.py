@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError
-from expoctl.world import Renderer, load_city
+from expoctl.world import Renderer, intrinsics, load_city
 from expoctl.world import clear_sky as cs
 from expoctl.world import daylight as dl
 from expoctl.world import portal_views as pv
 from expoctl.world import raycast as rc
-from expoctl.world.renderer import intrinsics
 
 Y_RGB = np.array([0.2126, 0.7152, 0.0722])
 

@@ -1,7 +1,7 @@
 """Behaviour checks of the closed-loop simulator (simulator spec, Validation): inliers vs exposure at a fixed pose form
 an inverted U that moves with scene luminance; high gain at equal brightness raises false detections.
 
-Train city from conf/, traversal 0 (sun), 160×120, ORB as the features stage configures it; expoctl.rig.exposure_sweep
+Train city from conf/, traversal 0 (sun), 160×120, ORB as the features stage configures it; expoctl.sim.exposure_sweep
 does the sweeps (benchmarks/exposure_response.py reports the same at 320×240 with the libviso2-style front end too).
 """
 
@@ -12,8 +12,8 @@ import pytest
 import yaml
 
 from expoctl.features.pipeline import make_frontend
-from expoctl.rig import exposure_sweep as xs
-from expoctl.rig.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors
+from expoctl.sim import exposure_sweep as xs
+from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors
 from expoctl.world import load_city
 
 ROOT = Path(__file__).resolve().parents[2]

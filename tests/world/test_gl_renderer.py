@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError
-from expoctl.world import Renderer, load_city, validate_render_config
+from expoctl.world import Renderer, load_city, make_renderer, validate_render_config
 from expoctl.world import gl_renderer
 from expoctl.world import route as rt
 from expoctl.world.raycast import FACE, PROP, SIDE, SKY, TCEIL, TWALL
@@ -127,17 +127,17 @@ def test_shader_segments_keep_arc_length_exactly():
 
 def test_backend_config(gl_ok):
     city = load_city("train")
-    r = Renderer.from_config(city, {"width": 32, "height": 24, "backend": "egl"})
+    r = make_renderer(city, {"width": 32, "height": 24, "backend": "egl"})
     assert isinstance(r, gl_renderer.GLRenderer) and r.width == 32
-    assert type(Renderer.from_config(city, {"width": 32, "height": 24, "backend": "numba"})) is Renderer
-    assert type(Renderer.from_config(city, {"width": 32, "height": 24})) is Renderer  # default stays numba
+    assert type(make_renderer(city, {"width": 32, "height": 24, "backend": "numba"})) is Renderer
+    assert type(make_renderer(city, {"width": 32, "height": 24})) is Renderer  # default stays numba
 
 
 def test_bad_backend_name_names_the_key():
     with pytest.raises(ConfigError, match=r"world\.render\.backend"):
         validate_render_config({"backend": "vulkan"})
     with pytest.raises(ConfigError, match=r"world\.render\.backend"):
-        Renderer.from_config(load_city("train"), {"backend": "opengl"})
+        make_renderer(load_city("train"), {"backend": "opengl"})
 
 
 def test_no_egl_context_is_a_config_error(monkeypatch):
@@ -150,7 +150,7 @@ def test_no_egl_context_is_a_config_error(monkeypatch):
     monkeypatch.setattr(moderngl, "create_standalone_context", fail)
     with pytest.raises(ConfigError, match=r"world\.render\.backend.*libEGL"):
         gl_renderer.gl_context()
-    r = Renderer.from_config(load_city("train"), {"width": 32, "height": 24, "backend": "egl"})
+    r = make_renderer(load_city("train"), {"width": 32, "height": 24, "backend": "egl"})
     with pytest.raises(ConfigError, match=r"world\.render\.backend"):  # the context is created on first render
         r.render_full(r.city.pose_at_s(250.0, 0.0))
     assert math.isfinite(r.lp[0])

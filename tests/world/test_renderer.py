@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError
-from expoctl.world import Renderer, intrinsics, load_city
+from expoctl.world import Renderer, intrinsics, load_city, make_renderer
 from expoctl.world.shade import MAT_LAMP, MAT_SKY
 
 Y_RGB = np.array([0.2126, 0.7152, 0.0722])
@@ -140,9 +140,9 @@ def test_second_camera_offset(train):
 def test_render_config_errors(train):
     city, _, _ = train
     with pytest.raises(ConfigError, match="world.render.blur"):
-        Renderer.from_config(city, {"blur": "smudge"})
+        make_renderer(city, {"blur": "smudge"})
     with pytest.raises(ConfigError, match="world.render.colour"):
-        Renderer.from_config(city, {"colour": True})
+        make_renderer(city, {"colour": True})
 
 
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "hdri"

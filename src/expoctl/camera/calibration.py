@@ -25,12 +25,11 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
-from expoctl.camera.response import _forward
+from expoctl.camera.response import SATURATED_DN, apply_curve
 from expoctl.camera.sensor import Sensor, SensorConfig
 from expoctl.errors import InputError
 
 FLOOR_DN = 20        # codes ≤ this are at the black/flare floor (the Memorial stack's plateau is ~13–19)
-SATURATED_DN = 250   # codes ≥ this are (near) saturated
 
 
 # ---------------------------------------------------------------- stack I/O and bookkeeping
@@ -171,7 +170,7 @@ class ParametricResponse:
 
     def code(self, x_norm: np.ndarray) -> np.ndarray:
         """Linear signal (0 = black level, 1 = ADC full scale) → continuous code in [0, 255]."""
-        y = self.offset + (1.0 - self.offset) * _forward(np.asarray(x_norm, np.float64), self.curve, self.gamma)
+        y = self.offset + (1.0 - self.offset) * apply_curve(np.asarray(x_norm, np.float64), self.curve, self.gamma)
         return 255.0 * np.clip(y, 0.0, 1.0)
 
 

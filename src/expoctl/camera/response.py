@@ -23,9 +23,11 @@ import numpy as np
 from expoctl.errors import ConfigError
 
 CURVES = ("srgb", "gamma", "linear")
+SATURATED_DN = 250  # a delivered 8-bit code (or grey level) at or above this counts as (near) saturated, clipped
 
 
-def _forward(x: np.ndarray, curve: str, gamma) -> np.ndarray:
+def apply_curve(x: np.ndarray, curve: str, gamma) -> np.ndarray:
+    """The transfer curve F (`curve`: srgb | gamma | linear) of a linear signal, clipped to [0, 1] first."""
     x = np.clip(x, 0.0, 1.0)
     if curve == "srgb":
         return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
@@ -85,7 +87,7 @@ class Response:
 
     def _encode(self, x: np.ndarray, c: int) -> np.ndarray:
         p = self.pedestal_rgb[c]
-        return p + (1.0 - p) * _forward(self.white_balance_rgb[c] * x, self.curve, self.gamma_rgb[c])
+        return p + (1.0 - p) * apply_curve(self.white_balance_rgb[c] * x, self.curve, self.gamma_rgb[c])
 
     def _require_rgb(self, a: np.ndarray, what: str) -> None:
         if self.per_channel and (a.ndim == 0 or a.shape[-1] != 3):

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 BACKENDS = ("aravis",)
 
+__all__ = ["BACKENDS", "open_camera"]
+
 
 def open_camera(camera_id: str, backend: str = "aravis", **options):
     """Open the camera `camera_id` with `backend` (options: width, height, pixel_format, frame_rate_hz,

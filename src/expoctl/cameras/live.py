@@ -1,4 +1,4 @@
-"""Real cameras as a `expoctl.rig.closed_loop.Rig`, so `drive_rig` — the simulator's loop — drives them too.
+"""Real cameras as a `expoctl.sim.closed_loop.Rig`, so `drive_rig` — the simulator's loop — drives them too.
 
 Per call `capture(t, settings)`:
 1. each camera gets its command for frame t (written only when it changed: a write is a round trip to the device);
@@ -24,7 +24,7 @@ from typing import Sequence
 
 from expoctl.cameras.base import Camera, CameraError, Frame, Limits
 from expoctl.controllers.base import Settings
-from expoctl.rig.closed_loop import CameraFrame, RigFrame
+from expoctl.sim.closed_loop import CameraFrame, RigFrame
 
 #: a reported setting equals a command when within these (GenICam devices round to their own increments, and
 #: the command we compare with is what the device itself read back after the write)

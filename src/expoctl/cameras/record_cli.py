@@ -3,7 +3,7 @@
   expoctl record --camera1 ID --camera2 ID --out DIR [--reference agae|learned] [--frames N] --baseline-m B
 
 Camera 1 runs the reference controller; camera 2 gets camera 1's settings perturbed by the same code as the
-simulated rig (`expoctl.rig.protocol`). Both cameras are software-triggered together for every frame pair, and each
+simulated rig (`expoctl.sim.protocol`). Both cameras are software-triggered together for every frame pair, and each
 pair's host receive times must agree within --pair-tolerance-ms. Without --frames it records until Ctrl-C; the
 frames up to then are a complete raw sequence that `expoctl validate` and `ingest` accept.
 """

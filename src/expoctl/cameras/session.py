@@ -1,6 +1,6 @@
 """Recording sessions on real cameras: `drive` (one camera under a controller) and `record` (the paper's dual-camera
-data collection). Both run the library's loop (`expoctl.rig.closed_loop.drive_rig`) over a `LiveRig` and write a raw
-sequence with `expoctl.rig.raw.SequenceWriter`.
+data collection). Both run the library's loop (`expoctl.sim.closed_loop.drive_rig`) over a `LiveRig` and write a raw
+sequence with `expoctl.raw.format.SequenceWriter`.
 
 Stopping, and what is left on disk:
 - after `frames` frames, or on Ctrl-C / SIGTERM (the first one: finish the current frame, then stop; a second one
@@ -28,9 +28,9 @@ from expoctl.cameras.base import Camera, CameraError, Limits
 from expoctl.cameras.live import LiveRig
 from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.errors import InputError
-from expoctl.rig.closed_loop import RigFrame, drive_rig
-from expoctl.rig.protocol import PerturbationConfig
-from expoctl.rig.raw import SequenceWriter
+from expoctl.sim.closed_loop import RigFrame, drive_rig
+from expoctl.sim.protocol import PerturbationConfig
+from expoctl.raw.format import SequenceWriter
 
 CONTROLLER_NAMES = ("agae", "fixed", "learned")
 REFERENCE_NAMES = ("agae", "learned")
@@ -307,7 +307,7 @@ def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], refere
            timeout_s: float = 2.0, intrinsics: dict | None = None,
            report: Callable[[str], None] = print) -> SessionResult:
     """The paper's dual-camera data collection (module doc): camera 1 under `reference`, camera 2 perturbed from
-    camera 1's settings frame by frame (`expoctl.rig.protocol`), both software-triggered together."""
+    camera 1's settings frame by frame (`expoctl.sim.protocol`), both software-triggered together."""
     if reference not in REFERENCE_NAMES:
         raise InputError(f"--reference {reference!r}: unknown (use one of {', '.join(REFERENCE_NAMES)})")
     (w1, h1), (w2, h2) = cameras[0].info.resolution, cameras[1].info.resolution

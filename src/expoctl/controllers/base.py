@@ -3,7 +3,7 @@
 A controller sees exactly what a real one sees: the 8-bit RGB image the camera delivered at frame t and the
 settings that frame was captured with (what the controller commanded earlier). It returns the settings it
 commands next; the camera applies them at frame t+1 (one frame of actuation latency, enforced by the caller,
-`expoctl.rig.closed_loop`). Controllers with extra internal latency (AG+AE) model it themselves.
+`expoctl.sim.closed_loop`). Controllers with extra internal latency (AG+AE) model it themselves.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ class TimedController(Controller):
 class DelayedController(Controller):
     """Delegates to a controller whose commands land `latency_frames` frames after the frame they were computed from.
 
-    The simulated rig applies a command at t+1 (`expoctl.rig.closed_loop`); a real camera's pipeline may need longer
+    The simulated rig applies a command at t+1 (`expoctl.sim.closed_loop`); a real camera's pipeline may need longer
     (the calibrated camera: t+2 at the earliest, docs/calibration.md). This holds each command back by
     `latency_frames − 1` frames, so the settings computed from frame t expose frame t + `latency_frames`. Until the
     first command lands, the camera keeps the initial settings. The inner controller sees every frame with the

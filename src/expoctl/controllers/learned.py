@@ -1,6 +1,6 @@
 """The learned controller (Tomasi et al. 2021): the trained CNN behind the shared `Controller` interface.
 
-Per frame: the full-size 8-bit RGB camera frame goes through `expoctl.preprocess.prepare_frame` — the ingest resize
+Per frame: the full-size 8-bit RGB camera frame goes through `expoctl.net.preprocess.prepare_frame` — the ingest resize
 (INTER_AREA to the image-store size recorded in the checkpoint), then to the network input size — exactly the
 chain the training frames went through. The controller keeps the last three prepared frames and their settings;
 until three frames exist it repeats the oldest one (the start of a sequence). The network's two outputs are
@@ -40,7 +40,7 @@ from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.controllers.agae import ln_exposure_product, split_exposure_first
 from expoctl.controllers.base import Controller, DelayedController, Settings
 from expoctl.errors import ConfigError
-from expoctl.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
+from expoctl.net.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
 
 
 ALLOCATIONS = ("network", "exposure_first")
@@ -74,7 +74,7 @@ class LearnedController(Controller):
     def from_checkpoint(cls, path, num_threads: int | None = 1, backend: str = "torch",
                         allocation: str = "network") -> "LearnedController":
         """Load models/controller.pt; backend "onnx" runs the exported models/controller.onnx beside it."""
-        from expoctl.train import load_checkpoint
+        from expoctl.net.checkpoint import load_checkpoint
 
         model, ckpt = load_checkpoint(path)
         session = None
@@ -146,11 +146,3 @@ def make_learned(params: dict) -> Controller:
     ctrl = LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"),
                                              allocation=params.get("allocation", "network"))
     return ctrl if latency == 1 else DelayedController(ctrl, latency)
-
-
-def register_learned() -> None:
-    """Add "learned" to `expoctl.controllers.registry` (explicit, not at import: building it needs a trained
-    checkpoint, which the registry's build-every-controller-from-YAML test does not have)."""
-    from expoctl.controllers.registry import register
-
-    register("learned", make_learned)

@@ -1,7 +1,7 @@
 """Name → controller factory. `make_controller("agae", cfg["controllers"]["agae"])`.
 
-`CONTROLLERS` is a plain dict so other modules (learned, oracle) can add themselves with `register(...)` without
-editing this file. A factory takes the controller's own config section (a dict, possibly empty) and returns a
+`CONTROLLERS` is a plain dict so other modules (the simulator's oracle) can add themselves with `register(...)`
+without editing this file. A factory takes the controller's own config section (a dict, possibly empty) and returns a
 fresh Controller; unknown keys and bad values raise ConfigError("controllers.<name>.<key>", ...).
 """
 

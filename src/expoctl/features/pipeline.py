@@ -26,7 +26,7 @@ import pandas as pd
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.frontend import PairCounts
 from expoctl.features.sumlog import SumLogGrid
-from expoctl.rig.raw import decode_8bit_image
+from expoctl.raw.format import decode_8bit_image
 
 FRONTEND_NAMES = ("orb", "viso")
 FRAMES_COLUMNS = ("sequence", "frame_id", "camera", "image_path")
@@ -319,7 +319,7 @@ def _run_tasks(tasks: list[_SequenceTask], n_jobs: int, progress: bool) -> list[
 def iter_training_pairs_rgb(frames_df: pd.DataFrame, project_root: str | os.PathLike, camera: int = 1,
                             max_pairs: int | None = None) -> Iterable[tuple[np.ndarray, np.ndarray]]:
     """Sequential (t, t+1) RGB pairs of one camera from the train split, for SumLog tuning (sumlog.tune_sumlog)."""
-    from expoctl.rig.raw import read_image_rgb
+    from expoctl.raw.format import read_image_rgb
 
     df = frames_df
     if "split" in df.columns:

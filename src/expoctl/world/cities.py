@@ -240,6 +240,17 @@ def city_config(name_or_dict: str | dict, city_dir: str | Path | None = None) ->
     return cfg
 
 
+def resolve_city_name(spec: Any, city_dir: str | None, key: str) -> str:
+    """The name of a city (validates it: an unknown name or bad key raises ConfigError under `key`)."""
+    if not (isinstance(spec, str) and spec) and not isinstance(spec, dict):
+        raise ConfigError(key, f"must be a city name or a city config mapping, got {spec!r}")
+    try:
+        return str(city_config(spec, city_dir)["name"])
+    except ConfigError as exc:
+        sub = exc.key[len("world.city"):] if exc.key.startswith("world.city") else ""
+        raise ConfigError(key + sub, exc.problem) from None
+
+
 # ---------------------------------------------------------------- validation helpers
 def _get(cfg: dict, dotted: str):
     node: Any = cfg

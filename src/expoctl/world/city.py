@@ -20,6 +20,7 @@ import numpy as np
 from expoctl.errors import ConfigError
 from expoctl.world import clear_sky
 from expoctl.world.cities import city_config
+from expoctl.world.render_config import validate_render_config
 from expoctl.world.route import Route, build_segments
 
 SUN_DISK_SOLID_ANGLE_SR = 6.8e-5  # the sun's disk (0.533° diameter)
@@ -91,6 +92,19 @@ def load_city(name_or_dict: str | dict, city_dir: str | Path | None = None) -> "
     return City(city_config(name_or_dict, city_dir))
 
 
+_CITY_CACHE: dict[str, City] = {}
+
+
+def load_city_cached(spec: str | dict, city_dir: str | None) -> "City":
+    """One City per spec per process: building a city's texture atlas takes seconds, sequences share it."""
+    import json
+
+    key = json.dumps([spec, city_dir], sort_keys=True)
+    if key not in _CITY_CACHE:
+        _CITY_CACHE[key] = load_city(spec, city_dir)
+    return _CITY_CACHE[key]
+
+
 def load_world_city(world_cfg: dict, split: str) -> "City":
     """The city configured for `split` in the `world` config group (conf/world/default.yaml: cities, city_dir)."""
     cities = world_cfg.get("cities") if isinstance(world_cfg, dict) else None
@@ -106,7 +120,6 @@ def load_world_city(world_cfg: dict, split: str) -> "City":
 
 def validate_world_config(world_cfg: dict) -> None:
     """Validate the whole `world` group (every configured city and the render keys) before any rendering."""
-    from expoctl.world.renderer import validate_render_config
     cities = world_cfg.get("cities") if isinstance(world_cfg, dict) else None
     if not isinstance(cities, dict) or not cities:
         raise ConfigError("world.cities", "must map split names to city names or city configs")

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from expoctl.world import raycast as rc
+from expoctl.world.render_config import intrinsics
 from expoctl.world.shade import render_kernel
 
 _Y = np.array([0.2126, 0.7152, 0.0722])
@@ -72,7 +73,6 @@ def _centre_frame(city, s):
 
 def render_y(renderer, pose, size_px, fov_deg, lp, lamp_mult, portal_lum) -> tuple[np.ndarray, np.ndarray]:
     """(luminance Y (size, size) cd/m², K) of a square numba render with the given lighting (no glare)."""
-    from expoctl.world.renderer import intrinsics
     K = intrinsics(size_px, size_px, fov_deg)
     i0, inside = renderer.locate(pose[:3, 3])
     lum = np.empty((size_px, size_px, 3), np.float32)

@@ -62,7 +62,7 @@ def _dot(seg, i, c, x, y, z):
 
 
 @njit(cache=True, inline="always")
-def _inside_profile(seg, j, v, w):
+def inside_profile(seg, j, v, w):
     hw = seg[j, rt.HW]
     if w <= 0.0 or v <= -hw or v >= hw:
         return False
@@ -321,7 +321,7 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use
             return INF, SKY, j, j, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1
         if seg[j, rt.KIND] == rt.KIND_TUNNEL:
             if seg[i, rt.KIND] != rt.KIND_TUNNEL:
-                if _inside_profile(seg, j, pv, pw):
+                if inside_profile(seg, j, pv, pw):
                     inside = True
                 elif pw < seg[j, rt.HILL_H]:
                     return (t0, FACE, j, i, inside, pu, pv, pw, -float(dirn), 0.0, 0.0, MAT_PORTAL)
@@ -398,7 +398,7 @@ def _bilinear(texels, base, n, x, y, out, weight):
 
 
 @njit(cache=True, inline="always")
-def _sample(texels, offs, sizes, scales, mat, a_m, b_m, footprint_m, texel_m, out):
+def sample_texture(texels, offs, sizes, scales, mat, a_m, b_m, footprint_m, texel_m, out):
     """Trilinear mip sample of material `mat` at surface coords (a along the route, b across/up) in metres."""
     n0 = sizes[mat, 0]
     tile_m = n0 * texel_m
@@ -426,7 +426,7 @@ def _sample(texels, offs, sizes, scales, mat, a_m, b_m, footprint_m, texel_m, ou
 
 
 @njit(cache=True, inline="always")
-def _box_cover(x, half, c, half_w):
+def box_cover(x, half, c, half_w):
     """Fraction of the box [x−half, x+half] covered by [c−half_w, c+half_w]."""
     lo = max(x - half, c - half_w)
     hi = min(x + half, c + half_w)
@@ -439,6 +439,6 @@ def _dash_integral(x, period, on):
 
 
 @njit(cache=True, inline="always")
-def _dash_cover(x, half, period, on, phase):
+def dash_cover(x, half, period, on, phase):
     """Fraction of [x−half, x+half] covered by a periodic dash pattern (on-length `on`, starting at `phase`)."""
     return (_dash_integral(x + half - phase, period, on) - _dash_integral(x - half - phase, period, on)) / (2 * half)

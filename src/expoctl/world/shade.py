@@ -107,11 +107,11 @@ def _road_marking(lp, s, v, half_v, half_s):
     for k in range(1, lanes):
         across = _box_cover(v, half_v, -edge + k * lw, 0.07)
         if across > 0.0:
-            cov += across * rc._dash_cover(s, half_s, 12.0, 3.0, 0.0)
+            cov += across * rc.dash_cover(s, half_s, 12.0, 3.0, 0.0)
     return min(cov, 1.0)
 
 
-_box_cover = rc._box_cover
+_box_cover = rc.box_cover
 
 
 # inlined into the parallel pixel loop: a call passed ~110 scalars (every array as ~9) per pixel; inlining it and
@@ -167,7 +167,7 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
     cos_i = abs(nx * dx + ny * dy + nz * dz)
     foot_across = t * pix_rad
     foot = foot_across / math.sqrt(max(cos_i, 0.02))  # geometric mean of the footprint's two axes
-    rc._sample(texels, offs, sizes, scales, mat, a, b, foot * lp[rc.LP_MIP_BIAS], texel_m, tex)
+    rc.sample_texture(texels, offs, sizes, scales, mat, a, b, foot * lp[rc.LP_MIP_BIAS], texel_m, tex)
     alb = albedo[mat]
     if mat == rc.MAT_ROAD:
         paint = _road_marking(lp, s_hit, v, max(0.5 * foot, 1e-4), max(0.5 * foot_across / max(cos_i, 0.02), 1e-4))
@@ -216,7 +216,7 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
         x = s_hit - seg[j, rt.TUN_S0]
         spacing = lp[rc.LP_LAMP_SPACING]
         half = max(0.5 * foot, 1e-4)
-        along = rc._dash_cover(x, half, spacing, lp[rc.LP_LAMP_LEN], 0.5 * spacing - 0.5 * lp[rc.LP_LAMP_LEN])
+        along = rc.dash_cover(x, half, spacing, lp[rc.LP_LAMP_LEN], 0.5 * spacing - 0.5 * lp[rc.LP_LAMP_LEN])
         if x < 0.0 or x > seg[j, rt.TUN_LEN]:
             along = 0.0
         if along > 0.0:

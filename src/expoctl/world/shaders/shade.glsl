@@ -1,5 +1,5 @@
 // Per-pixel shading: GLSL port of expoctl.world.shade (shade_pixel, render_kernel) and the texture helpers of
-// expoctl.world.raycast (_hash01, _bilinear, _sample, _box_cover, _dash_cover). float32.
+// expoctl.world.raycast (_hash01, _bilinear, sample_texture, box_cover, dash_cover). float32.
 
 // Small per-scene data in one uniform block (fast loads, see trace.glsl), vec4-packed (std140 arrays have a 16-byte
 // stride); sizes fixed per program (gl_renderer._programs).

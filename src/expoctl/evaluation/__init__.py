@@ -1,0 +1,13 @@
+"""Closed-loop evaluation: the `evaluate` config group (`config`), one run of one controller over one window (`run`),
+the planning and fan-out of all runs and the stage's outputs (`runner`) and the aggregation into
+reports/metrics.json (`aggregate`).
+"""
+
+from expoctl.evaluation.aggregate import add_section_ids, section_stats, validate_metrics
+from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
+from expoctl.evaluation.runner import (RunJob, city_windows, evaluate, metrics_summary, run_jobs, tune_sumlog_params,
+                                       write_outputs)
+
+__all__ = ["CONTROLLER_NAMES", "FRONTENDS", "EvaluateConfig", "RunJob", "SplitPlan", "add_section_ids", "city_windows",
+           "evaluate", "metrics_summary", "run_jobs", "section_stats", "split_plan_from_dict", "tune_sumlog_params",
+           "validate_metrics", "write_outputs"]

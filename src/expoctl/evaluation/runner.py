@@ -1,0 +1,406 @@
+"""Closed-loop evaluation (the `evaluate` stage): every controller drives the simulated camera over the same windows.
+
+Plan: for each route split (validation: world.cities.validation; test: world.cities.test), `n_traversals` traversals
+(their own speed, sun, sky; seeds disjoint from `collect`'s), and in each the configured windows around tunnels
+(`expoctl.evaluation.config`). One *run* = (window, controller); every controller of a window gets the same scene,
+sensor parameters, fixed-pattern noise and per-frame noise seeds. Runs fan out over processes (`n_jobs`).
+
+SumLog: its parameters are tuned here, once per front end, before the fan-out, on sequential camera-1 pairs of the
+training split (data/frames.parquet → the raw PNGs), over the grid `features.sumlog`, maximising total inlier matches
+(`expoctl.features.sumlog.tune_sumlog`); the result is written to reports/eval/sumlog.json.
+
+Outputs (`write_outputs`): reports/metrics.json (DESIGN schema), reports/eval/frames.parquet (per frame per run),
+runs.parquet (per run: VO success, failed_at, ATE/RPE, timing), sections.parquet (per section statistics),
+sumlog.json, thumbs/<run_id>.npz (frames around the portals, for the report's image strips).
+
+Config read: `evaluate`, `seed`, `sensor`, `world`, `rig`, `controllers`, `features`, `paths.model`, `paths.frames`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pandas as pd
+
+from expoctl.errors import ConfigError, InputError
+from expoctl.evaluation.aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
+from expoctl.evaluation.config import ROUTE_SPLITS, EvaluateConfig, SplitPlan
+from expoctl.features.sumlog import SumLogParams
+
+
+@dataclass(frozen=True)
+class Window:
+    """One stretch of one traversal, driven by every controller (trajectory frames [start, stop))."""
+
+    route_split: str
+    city: str | dict
+    city_dir: str | None
+    city_name: str
+    traversal: int
+    traversal_seed: int
+    traversal_frames: int
+    index: int  # window index within the traversal (see evaluation.config)
+    label: str  # e.g. "tunnel 0 passage", "tunnel 1 exit"
+    start: int
+    stop: int
+    seed: int  # sensor randomisation + noise seeds, shared by all controllers
+
+    @property
+    def sequence(self) -> str:
+        return f"{self.route_split}-{self.city_name}-t{self.traversal:03d}-w{self.index:02d}"
+
+
+@dataclass(frozen=True)
+class RunJob:
+    window: Window
+    controller: str
+    cfg: dict = field(repr=False)
+    sumlog: dict[str, SumLogParams] = field(repr=False)
+    model_path: str | None = None
+    label: str = ""  # names the run instead of `controller` when several runs of a window share one (model selection)
+
+    @property
+    def run_id(self) -> str:
+        return f"{self.window.sequence}-{self.label or self.controller}"
+
+
+@dataclass
+class EvaluationResult:
+    frames: pd.DataFrame
+    runs: pd.DataFrame
+    sections: pd.DataFrame
+    metrics: dict
+    sumlog: dict[str, SumLogParams]
+    thumbs: dict[str, dict[str, np.ndarray]]
+    windows: list[Window]
+
+
+# --------------------------------------------------------------------------------------------------------- planning
+
+
+def plan_windows(cfg: dict, project_root: str | os.PathLike = ".") -> list[Window]:
+    """Every window of the evaluation, in order (loads the cities' geometry, renders nothing)."""
+    from expoctl.sim.closed_loop import RigConfig
+
+    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
+    rig = RigConfig.from_dict(cfg.get("rig"))
+    windows: list[Window] = []
+    for split in ROUTE_SPLITS:
+        plan = ecfg.splits.get(split)
+        if plan is not None:
+            windows += city_windows(cfg, project_root, split, split, plan, f"evaluate.splits.{split}", rig.fps,
+                                    ecfg.warmup_frames)
+    if not windows:
+        raise ConfigError("evaluate.splits", "plans no window (give validation and/or test a plan)")
+    return windows
+
+
+def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_key: str, plan: SplitPlan,
+                 plan_key: str, fps: float, warmup_frames: int) -> list[Window]:
+    """The windows `plan` asks for on `world.cities.<city_key>`, labelled `label` (their route_split; it also seeds
+    the traversals and noise, so two labels never share a window). `plan_key` is the config key errors name."""
+    from expoctl.sim.collect import config_seed, derive_seed
+    from expoctl.world import load_city_cached
+    from expoctl.world.cities import resolve_city_name
+
+    base_seed = config_seed(cfg)
+    world = cfg.get("world") or {}
+    city_dir = world.get("city_dir")
+    if city_dir is not None:
+        city_dir = str((Path(project_root) / city_dir).resolve())
+    cities = world.get("cities") or {}
+    if city_key not in cities:
+        raise ConfigError(f"world.cities.{city_key}", f"missing: {plan_key} needs a city")
+    spec = cities[city_key]
+    name = resolve_city_name(spec, city_dir, f"world.cities.{city_key}")
+    city = load_city_cached(spec, city_dir)
+    if not city.tunnel_spans():
+        raise ConfigError(f"world.cities.{city_key}", f"city {name!r} has no tunnel: nothing to drive windows around")
+    tseed = derive_seed(base_seed, "evaluate-traversal", label)
+    windows: list[Window] = []
+    for k in range(plan.n_traversals):
+        index = plan.first_traversal + k
+        lap = city.traversal(index, None, fps, tseed)
+        n = 2 * len(lap.timestamps_ns)  # two laps: every window fits whole somewhere
+        traj = city.traversal(index, n, fps, tseed)
+        spans = _windows_of(traj.portal_times_s, plan, fps, n, warmup_frames, plan_key)
+        chosen = range(len(spans)) if plan.windows is None else plan.windows
+        for w in chosen:
+            if w >= len(spans):
+                raise ConfigError(f"{plan_key}.windows",
+                                  f"window {w} does not exist: city {name!r} has {len(spans)} {plan.window} windows")
+            wlabel, start, stop = spans[w]
+            windows.append(Window(label, spec, city_dir, name, index, tseed, n, w, wlabel, start, stop,
+                                  derive_seed(base_seed, "evaluate", label, name, index, w)))
+    return windows
+
+
+def _windows_of(portals: list, plan: SplitPlan, fps: float, n: int, warmup: int,
+                plan_key: str | None = None) -> list[tuple[str, int, int]]:
+    """(label, start, stop) per window in route order: the first occurrence with room for the warm-up before it."""
+    tunnels = sorted({ti for _, ti, _ in portals})
+    wanted: list[tuple[str, list]] = []
+    for ti in tunnels:
+        entries = [t for t, i, kind in portals if i == ti and kind == "entry"]
+        exits = [t for t, i, kind in portals if i == ti and kind == "exit"]
+        if plan.window == "passage":
+            occ = [(te, min([tx for tx in exits if tx > te], default=math.inf)) for te in entries]
+            wanted.append((f"tunnel {ti} passage", [(a, b) for a, b in occ if math.isfinite(b)]))
+        else:
+            wanted.append((f"tunnel {ti} entry", [(t, t) for t in entries]))
+            wanted.append((f"tunnel {ti} exit", [(t, t) for t in exits]))
+    out = []
+    for label, occurrences in wanted:
+        for a, b in sorted(occurrences):
+            start = int(math.floor((a - plan.before_s) * fps))
+            stop = int(math.ceil((b + plan.after_s) * fps)) + 1
+            if start - warmup >= 0 and stop <= n:
+                out.append((label, start, stop))
+                break
+        else:
+            raise ConfigError(plan_key or f"evaluate.splits.{plan.name}", f"no room for the {label} window (before_s/after_s too "
+                              "long for the route?)")
+    return out
+
+
+def window_annotations(traj, start: int, stop: int) -> tuple[list[str], np.ndarray, list[str]]:
+    """Per frame of [start, stop): section label, signed time to the nearest portal crossing, that portal's kind."""
+    times = np.asarray(traj.timestamps_ns[start:stop], dtype=np.float64) * 1e-9
+    section = [str(s) for s in traj.frame_section[start:stop]]
+    if not traj.portal_times_s:
+        return section, np.full(len(times), np.nan), [""] * len(times)
+    pt = np.array([p[0] for p in traj.portal_times_s])
+    nearest = np.argmin(np.abs(times[:, None] - pt[None, :]), axis=1)
+    return section, times - pt[nearest], [str(traj.portal_times_s[i][2]) for i in nearest]
+
+
+# ------------------------------------------------------------------------------------------------------- SumLog
+
+
+def tune_sumlog_params(cfg: dict, project_root: str | os.PathLike, n_pairs: int) -> dict[str, SumLogParams]:
+    """SumLog parameters per front end, tuned on sequential camera-1 training pairs (see module docstring)."""
+    from expoctl.features.pipeline import FeaturesConfig, iter_training_pairs_rgb, make_frontend
+    from expoctl.features.sumlog import tune_sumlog
+
+    fcfg = FeaturesConfig.from_dict(cfg.get("features"))
+    frames_path = Path(project_root) / cfg["paths"]["frames"]
+    if not frames_path.is_file():
+        raise InputError(f"{frames_path}: frames table missing (SumLog is tuned on the training frames); "
+                         "run the ingest stage first")
+    try:
+        frames = pd.read_parquet(frames_path)
+    except Exception as exc:  # pyarrow raises several types for a damaged file
+        raise InputError(f"{frames_path}: not a readable Parquet file ({exc})") from None
+    pairs = list(iter_training_pairs_rgb(frames, project_root, camera=1, max_pairs=n_pairs))
+    if not pairs:
+        raise InputError(f"{frames_path}: no sequential camera-1 pairs in the train split to tune SumLog on")
+    grid = fcfg.sumlog
+    out = {}
+    for name in ("orb", "viso"):
+        fe = make_frontend(name, getattr(fcfg, name))
+        out[name] = tune_sumlog(pairs, fe, grid.alphas, grid.betas, grid.rescale, seed=fcfg.seed)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------------- runs
+
+
+def learned_model_path(cfg: dict, project_root: str | os.PathLike) -> Path:
+    section = (cfg.get("controllers") or {}).get("learned") or {}
+    p = Path(section.get("checkpoint") or cfg["paths"]["model"])
+    return p if p.is_absolute() else Path(project_root) / p
+
+
+def _controller_params(cfg: dict, name: str) -> dict:
+    section = (cfg.get("controllers") or {}).get(name)
+    if section is None:
+        return {}
+    if not isinstance(section, dict):
+        raise ConfigError(f"controllers.{name}", f"must be a mapping, got {section!r}")
+    return dict(section)
+
+
+def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
+    """Render and evaluate one run (runs in a worker process)."""
+    import expoctl.sim.oracle as oracle_mod
+    from expoctl.controllers.base import Settings
+    from expoctl.controllers.registry import make_controller
+    from expoctl.evaluation.run import WindowFrames, drive_window
+    from expoctl.features.pipeline import FeaturesConfig, make_frontend
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
+    from expoctl.world import load_city_cached
+    from expoctl.vo.frame_to_frame import intrinsics_matrix
+
+    oracle_mod.register_oracle()
+    cfg, w = job.cfg, job.window
+    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
+    fcfg = FeaturesConfig.from_dict(cfg.get("features"))
+    rig = RigConfig.from_dict(cfg.get("rig"))
+    render = RenderConfig.from_world(cfg.get("world"))
+    if ecfg.render_size is not None:
+        render = render.with_size(*ecfg.render_size)
+    city = load_city_cached(w.city, w.city_dir)
+    traj = _traversal_cached(city, w, rig.fps)
+    scene = RouteScene(city, traj, rig, render)
+    sensors, _ = make_sensors(cfg.get("sensor"), render, 1, ecfg.sensor_randomisation, w.seed)
+    warmup = ecfg.warmup_frames
+    params = _controller_params(cfg, job.controller)
+    if job.controller == "oracle":
+        scene = oracle_mod.CachedScene(scene)
+        oparams = oracle_mod.OracleParams.from_dict(params)
+        warmup = min(warmup, oparams.warmup_frames)
+        controller = make_controller("oracle", {**params, "scene": scene, "sensor": sensors[0], "seed": w.seed,
+                                                "n_frames": w.traversal_frames, "first_frame": max(0, w.start - warmup)})
+    elif job.controller == "learned":
+        params["checkpoint"] = job.model_path
+        controller = make_controller("learned", params)
+    else:
+        controller = make_controller(job.controller, params)
+    section, dt, kind = window_annotations(traj, w.start, w.stop)
+    window = WindowFrames(w.sequence, range(w.start, w.stop), section, dt, kind, traj.poses[w.start:w.stop])
+    K = intrinsics_matrix(rig_metadata(rig, render)["intrinsics"])
+    frontends = {"orb": make_frontend("orb", fcfg.orb), "viso": make_frontend("viso", fcfg.viso)}
+    rows, summary, thumbs = drive_window(
+        scene, sensors[0], controller, window, seed=w.seed, frontends=frontends, sumlog=job.sumlog,
+        initial=Settings(ecfg.initial_gain_db, ecfg.initial_exposure_us), warmup_frames=warmup, K=K,
+        vo_min_inliers=ecfg.vo.min_inliers, vo_n_features=ecfg.vo.n_features,
+        vo_ransac_threshold_px=ecfg.vo.ransac_threshold_px, vo_map=ecfg.vo.map, thumb_width=ecfg.thumb_width,
+        thumb_every=ecfg.thumb_every, thumb_span_s=ecfg.thumb_span_s)
+    ident = {"run_id": job.run_id, "route_split": w.route_split, "city": w.city_name, "traversal": w.traversal,
+             "window": w.index, "window_label": w.label, "controller": job.controller}
+    for r in rows:
+        r.update(ident)
+    summary.update(ident, warmup_frames=warmup)
+    if job.controller == "oracle":
+        summary["oracle_ms_median"] = float(np.median(controller.timings_ms)) if controller.timings_ms else np.nan
+        summary["oracle_renders"] = int(scene.n_renders)
+    return rows, summary, thumbs
+
+
+_TRAJ_CACHE: dict[tuple, Any] = {}
+
+
+def _traversal_cached(city, w: Window, fps: float):
+    """One trajectory per (city, traversal, length, fps, seed) per process: every controller of a window reuses it
+    (two laps of poses take seconds to compute). Controllers never modify it."""
+    key = (id(city), w.traversal, w.traversal_frames, fps, w.traversal_seed)
+    if key not in _TRAJ_CACHE:
+        if len(_TRAJ_CACHE) >= 4:
+            _TRAJ_CACHE.clear()
+        _TRAJ_CACHE[key] = city.traversal(w.traversal, w.traversal_frames, fps, w.traversal_seed)
+    return _TRAJ_CACHE[key]
+
+
+def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = False) -> EvaluationResult:
+    """Plan, tune SumLog, run every (window, controller) and aggregate (no files written)."""
+    from expoctl.controllers.registry import make_controller
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig
+
+    project_root = Path(project_root)
+    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))  # ConfigErrors before any work
+    RigConfig.from_dict(cfg.get("rig"))
+    RenderConfig.from_world(cfg.get("world"))
+    for name in ecfg.controllers:
+        if name not in ("learned", "oracle"):
+            make_controller(name, _controller_params(cfg, name))
+    model_path = None
+    if "learned" in ecfg.controllers:
+        model_path = learned_model_path(cfg, project_root)
+        if not model_path.is_file():
+            raise InputError(f"{model_path}: trained model missing — the 'learned' controller cannot run; run the "
+                             "train stage first (or drop 'learned' from evaluate.controllers)")
+    if "oracle" in ecfg.controllers:
+        from expoctl.sim.oracle import OracleParams
+
+        OracleParams.from_dict(_controller_params(cfg, "oracle"))
+    windows = plan_windows(cfg, project_root)
+    sumlog = tune_sumlog_params(cfg, project_root, ecfg.sumlog_pairs)
+    # the oracle is the slowest run: start those first so the pool does not end on one long job
+    order = sorted(ecfg.controllers, key=lambda c: c != "oracle")
+    jobs = [RunJob(w, c, cfg, sumlog, None if model_path is None else str(model_path)) for c in order for w in windows]
+    rows: list[dict] = []
+    summaries: list[dict] = []
+    thumbs: dict[str, dict] = {}
+    for job, (r, s, tb) in run_jobs(jobs, ecfg.n_jobs, progress):
+        rows.extend(r)
+        summaries.append(s)
+        thumbs[job.run_id] = tb
+    frames = add_section_ids(pd.DataFrame(rows))
+    runs = pd.DataFrame(summaries).sort_values("run_id").reset_index(drop=True)
+    sections = section_stats(frames, ecfg.min_section_frames)
+    metrics = build_metrics(sections, runs)
+    problems = validate_metrics(metrics, ecfg.controllers, [s for s in ROUTE_SPLITS if s in ecfg.splits])
+    if problems:
+        raise ValueError("metrics.json would break the DESIGN schema: " + "; ".join(problems))
+    return EvaluationResult(frames, runs, sections, metrics, sumlog, thumbs, windows)
+
+
+def write_outputs(result: EvaluationResult, reports_dir: str | os.PathLike) -> dict[str, Path]:
+    """reports/eval/ (swapped in whole) and reports/metrics.json, atomically."""
+    import dataclasses
+
+    from expoctl.io import atomic_dir, write_json
+
+    reports_dir = Path(reports_dir)
+    eval_dir = reports_dir / "eval"
+    with atomic_dir(eval_dir) as tmp:
+        result.frames.to_parquet(tmp / "frames.parquet", index=False)
+        result.runs.to_parquet(tmp / "runs.parquet", index=False)
+        result.sections.to_parquet(tmp / "sections.parquet", index=False)
+        write_json({k: dataclasses.asdict(v) for k, v in result.sumlog.items()}, tmp / "sumlog.json")
+        write_json([{**dataclasses.asdict(w), "sequence": w.sequence} for w in result.windows], tmp / "windows.json")
+        (tmp / "thumbs").mkdir()
+        for run_id, tb in result.thumbs.items():
+            np.savez_compressed(tmp / "thumbs" / f"{run_id}.npz", **tb)
+    write_json(result.metrics, reports_dir / "metrics.json")
+    return {"metrics": reports_dir / "metrics.json", "eval_dir": eval_dir}
+
+
+def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool) -> Iterator[tuple[RunJob, tuple]]:
+    """(job, `run_job(job)`) for every job as it finishes: in this process when n_jobs <= 1, else in n_jobs spawned
+    worker processes (one thread each)."""
+    from tqdm import tqdm
+
+    from expoctl.host import single_threaded_children
+
+    bar = tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress)
+    try:
+        if n_jobs <= 1 or len(jobs) <= 1:
+            for job in jobs:
+                yield job, run_job(job)
+                bar.update()
+            return
+        # spawn: workers load torch (learned controller), which is not fork-safe; one thread each (2-core budget)
+        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(run_job, job): job for job in jobs}
+            try:
+                for fut in as_completed(futures):
+                    yield futures[fut], fut.result()
+                    bar.update()
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+    finally:
+        bar.close()
+
+
+def metrics_summary(metrics: dict[str, Any]) -> dict[str, float]:
+    """Flat {split.controller.kind.frontend.stat: value} for logging (None values dropped)."""
+    out = {}
+    for split, ctrls in metrics.items():
+        for ctrl, e in ctrls.items():
+            for kind in ("static", "dynamic"):
+                for fe, m in e[kind].items():
+                    for stat, v in m.items():
+                        if v is not None:
+                            out[f"{split}.{ctrl}.{kind}.{fe}.{stat}"] = float(v)
+            n_ok, n = e["tracking_success"]
+            out[f"{split}.{ctrl}.tracking_success_rate"] = n_ok / n
+    return out

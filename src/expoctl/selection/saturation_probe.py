@@ -1,0 +1,214 @@
+"""Does a controller recover from a badly exposed start? A closed-loop probe of its fixed points.
+
+Why: open-loop metrics (validation loss, `expoctl.net.follow`) describe a network in the states its training data
+contain: camera 1 under a well-exposed reference, camera 2 within about ±1 EV of it. In closed loop the network also
+meets states its data never contain, and the worst of them is a saturated frame: it shows almost nothing of the
+scene, so nothing in the image tells the network how far to step down. If its step there is about zero, saturation is
+an absorbing state and the controller stays white. Measured (README, Results): every network that diverged in the
+evaluation ended this probe with 97–100 % of the frame clipped from some start; no sound one did.
+
+Protocol: the real simulator and sensor (one city, one traversal no stage collects or evaluates, e.g. 900), in closed
+loop, from one start frame in the middle of the route's longest open-road (static) stretch and one in the middle of
+its longest tunnel interior. AG+AE first runs `frames` frames from its own start to give the reference level P_ref
+(its exposure product over the last `last_frames` frames). Then each controller runs the same frames from
+P_ref·2^k for each offset k (exposure first, then gain), with no warm-up. Per controller, start and k: the offset of
+its exposure product from P_ref over the last frames (EV), its mean step over the first `first_frames` frames, and
+the clipped share (grey ≥ 250) of the last frame. One attracting fixed point shows as the same final offset from
+every k; an absorbing saturated state as final offset ≈ k, step ≈ 0 and a white last frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from expoctl.camera.ranges import exposure_value_ev
+from expoctl.camera.response import SATURATED_DN  # grey level counted as clipped (as evaluate's saturated_frac)
+from expoctl.controllers.agae import split_exposure_first
+from expoctl.controllers.base import Controller, Settings
+from expoctl.errors import ConfigError, InputError
+
+AGAE_START = Settings(0.0, 5000.0)  # AG+AE's own start before it settles to the reference level
+
+
+@dataclass(frozen=True)
+class ProbeConfig:
+    """conf/select_model/default.yaml `probe` (validated by `from_dict`)."""
+
+    enabled: bool = True
+    city: str = "train"
+    traversal: int = 900
+    seed: int = 0  # the traversal's conditions and noise: fixed, so every run's networks face the same test
+    frames: int = 60
+    offsets_ev: tuple[float, ...] = (0.0, 6.0)
+    width: int = 320
+    height: int = 240
+    max_saturated_fraction: float = 0.97  # a candidate fails when some start ends with at least this share clipped
+    last_frames: int = 10
+    first_frames: int = 10
+
+    @classmethod
+    def from_dict(cls, d, key: str) -> "ProbeConfig":
+        if d is None:
+            d = {}
+        if not isinstance(d, dict):
+            raise ConfigError(key, f"must be a mapping, got {d!r}")
+        known = {f for f in cls.__dataclass_fields__}
+        for k in d:
+            if k not in known:
+                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
+        v = {**{f: getattr(cls, f) for f in known}, **d}
+        if not isinstance(v["enabled"], bool):
+            raise ConfigError(f"{key}.enabled", f"must be true or false, got {v['enabled']!r}")
+        if not isinstance(v["city"], str) or not v["city"]:
+            raise ConfigError(f"{key}.city", f"must name a world.cities entry, got {v['city']!r}")
+        for name, lo in (("traversal", 0), ("seed", 0), ("frames", 2), ("width", 16), ("height", 16),
+                         ("last_frames", 1), ("first_frames", 1)):
+            x = v[name]
+            if isinstance(x, bool) or not isinstance(x, int) or x < lo:
+                raise ConfigError(f"{key}.{name}", f"must be an integer >= {lo}, got {x!r}")
+        for name in ("last_frames", "first_frames"):
+            if v[name] >= v["frames"]:
+                raise ConfigError(f"{key}.{name}", f"must be below frames ({v['frames']}), got {v[name]}")
+        offs = v["offsets_ev"]
+        if (not isinstance(offs, (list, tuple)) or not offs or not all(
+                isinstance(o, (int, float)) and not isinstance(o, bool) and math.isfinite(o) for o in offs)):
+            raise ConfigError(f"{key}.offsets_ev", f"must be a non-empty list of finite EV offsets, got {offs!r}")
+        m = v["max_saturated_fraction"]
+        if isinstance(m, bool) or not isinstance(m, (int, float)) or not 0 < m <= 1:
+            raise ConfigError(f"{key}.max_saturated_fraction", f"must be in (0, 1], got {m!r}")
+        return cls(v["enabled"], v["city"], v["traversal"], v["seed"], v["frames"],
+                   tuple(float(o) for o in offs), v["width"], v["height"], float(m), v["last_frames"],
+                   v["first_frames"])
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int]:
+    """(start, length) of the longest run of True in mask (the first one on a tie)."""
+    best, start = (0, 0), None
+    for i, m in enumerate(np.append(np.asarray(mask, bool), False)):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            if i - start > best[1]:
+                best = (start, i - start)
+            start = None
+    return best
+
+
+def start_frames(trajectory, n_frames: int) -> dict[str, int]:
+    """First frame of each probe run: the middle of the longest static open-road stretch and of the longest stretch
+    inside a tunnel, minus half a run. Raises InputError when a stretch is shorter than a run."""
+    static = np.asarray(trajectory.frame_section) == "static"
+    t = np.arange(len(static)) / trajectory.fps
+    inside = np.zeros(len(static), bool)  # after an entry crossing and before the next exit
+    crossings = sorted(trajectory.portal_times_s)
+    for (t_in, _, kind), nxt in zip(crossings, crossings[1:] + [(math.inf, None, "exit")]):
+        if kind == "entry":
+            inside |= (t >= t_in) & (t < nxt[0])
+    if crossings and crossings[0][2] == "exit":  # the traversal starts inside a tunnel
+        inside |= t < crossings[0][0]
+    out = {}
+    for name, mask in (("open_road", static & ~inside), ("tunnel", inside)):
+        s, n = _longest_run(mask)
+        if n < n_frames:
+            raise InputError(f"saturation probe: the longest {name} stretch of the traversal has {n} frames, fewer "
+                             f"than the probe's {n_frames}")
+        out[name] = s + (n - n_frames) // 2
+    return out
+
+
+def settings_at(ev: float) -> Settings:
+    """Exposure-first settings at exposure value `ev` (`exposure_value_ev`: log2 of t·gain with t in seconds),
+    clipped to the camera's ranges."""
+    return split_exposure_first(ev * math.log(2.0) + math.log(1e6))  # the split works on ln(t in µs · gain)
+
+
+def _ev(s: Settings) -> float:
+    return float(exposure_value_ev(s.gain_db, s.exposure_us))
+
+
+class SaturationProbe:
+    """The probe's scene and reference levels, built once and run for any number of controllers."""
+
+    def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor_cfg: dict | None, agae: Controller):
+        from expoctl.sim.closed_loop import RouteScene, make_sensors
+
+        self.cfg = pcfg
+        self.trajectory = city.traversal(pcfg.traversal, None, rig.fps, pcfg.seed)
+        self.scene = RouteScene(city, self.trajectory, rig, render.with_size(pcfg.width, pcfg.height))
+        self.sensor = make_sensors(sensor_cfg, render.with_size(pcfg.width, pcfg.height), 1, 0.0, pcfg.seed)[0][0]
+        self.starts = {}
+        for name, frame in start_frames(self.trajectory, pcfg.frames).items():
+            evs, _ = self._drive(agae, AGAE_START, frame)
+            ref = float(evs[-pcfg.last_frames:].mean())
+            # the camera's ranges clip some starts (e.g. −4 EV in daylight): record where each run really starts
+            offsets = [_ev(settings_at(ref + k)) - ref for k in pcfg.offsets_ev]
+            self.starts[name] = {"frame": int(frame), "agae_ref_ev": ref, "start_offsets_ev": offsets}
+
+    def _drive(self, controller: Controller, initial: Settings, start: int) -> tuple[np.ndarray, float]:
+        """Per-frame EV of the applied settings, and the clipped share of the last frame."""
+        from expoctl.sim.closed_loop import run_closed_loop
+
+        evs, last = [], None
+        for f in run_closed_loop(self.scene, [self.sensor], controller, initial,
+                                 range(start, start + self.cfg.frames), self.cfg.seed):
+            last = f.camera(1)
+            evs.append(_ev(last.settings))
+        return np.array(evs), float((last.image.mean(axis=2) >= SATURATED_DN).mean())  # the last frame only
+
+    def run(self, controller: Controller) -> dict:
+        """{start name: [per offset: k_ev, start/final offset (EV), mean first step (EV/frame), final clipped
+        share, per-frame offsets]} plus `worst_saturated_frac` and `passes`."""
+        pc = self.cfg
+        out: dict = {"starts": {}}
+        for name, st in self.starts.items():
+            rows = []
+            for k in pc.offsets_ev:
+                evs, clipped = self._drive(controller, settings_at(st["agae_ref_ev"] + k), st["frame"])
+                off = evs - st["agae_ref_ev"]
+                rows.append({"k_ev": k, "start_offset_ev": float(off[0]),
+                             "final_offset_ev": float(off[-pc.last_frames:].mean()),
+                             "mean_step_first_ev": float((off[pc.first_frames] - off[0]) / pc.first_frames),
+                             "final_saturated_frac": clipped, "offset_ev": off.round(3).tolist()})
+            out["starts"][name] = rows
+        worst = max(r["final_saturated_frac"] for rows in out["starts"].values() for r in rows)
+        out["worst_saturated_frac"] = worst
+        out["passes"] = bool(worst < pc.max_saturated_fraction)
+        return out
+
+
+def make_probe(pcfg: ProbeConfig, cfg: Mapping, project_root) -> SaturationProbe:
+    """The probe for a resolved project config (world, rig, sensor, controllers.agae) and its city."""
+    from pathlib import Path
+
+    from expoctl.controllers.registry import make_controller
+    from expoctl.sim.closed_loop import RenderConfig, RigConfig
+    from expoctl.world import load_city
+
+    world = cfg.get("world") or {}
+    cities = world.get("cities") or {}
+    if pcfg.city not in cities:
+        raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(cities)})")
+    city = load_city(cities[pcfg.city], str(Path(project_root) / world.get("city_dir", "conf/world/cities")))
+    rig = RigConfig.from_dict(cfg.get("rig"))
+    render = RenderConfig.from_world(world)
+    agae = make_controller("agae", (cfg.get("controllers") or {}).get("agae", {}))
+    return SaturationProbe(pcfg, city, rig, render, cfg.get("sensor"), agae)
+
+
+def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Controller]]) -> dict[str, dict]:
+    """Run the probe for each named controller factory (a fresh controller per name)."""
+    return {name: probe.run(factory()) for name, factory in controllers.items()}
+
+
+def summary_line(name: str, result: dict) -> str:
+    """One human-readable line: final offset / clipped share per start and offset, and the verdict."""
+    cells = []
+    for start, rows in result["starts"].items():
+        cells.append(f"{start} " + ", ".join(f"{r['k_ev']:+g}→{r['final_offset_ev']:+.1f} EV "
+                                             f"{100 * r['final_saturated_frac']:.0f} %" for r in rows))
+    verdict = "passes" if result["passes"] else "FAILS (saturated fixed point)"
+    return f"{name}: " + "; ".join(cells) + f"; worst {100 * result['worst_saturated_frac']:.0f} % clipped: {verdict}"

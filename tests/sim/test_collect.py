@@ -1,0 +1,187 @@
+import copy
+
+import pandas as pd
+import pytest
+import yaml
+
+from expoctl.errors import ConfigError
+from expoctl.sim.closed_loop import RigConfig
+from expoctl.sim.collect import CollectConfig, collect, plan_sequences
+from expoctl.raw.validate import validate_raw_dir
+from expoctl.sim.protocol import perturb, PerturbationConfig
+from expoctl.controllers.base import Settings
+
+TINY = {
+    "seed": 3,
+    "rig": {"baseline_m": 0.0392, "fps": 15.0},
+    # a cheap city: the train city with small texture tiles (atlas in ~1 s instead of ~10 s), from a city_dir file
+    "world": {"cities": {"train": "small", "validation": "small", "test": "small"}, "city_dir": None,
+              "render": {"width": 64, "height": 48, "hfov_deg": 70.0}},
+    "collect": {
+        "reference_controller": "agae",
+        "initial_gain_db": 0.0,
+        "initial_exposure_us": 5000.0,
+        "warmup_frames": 2,
+        "sensor_randomisation": 0.15,
+        "n_jobs": 1,
+        "splits": {
+            "train": {"first_traversal": 0, "n_sequences": 1, "frames": 6},
+            "validation": {"first_traversal": 5, "n_sequences": 1, "frames": 5},
+            "test": None,
+        },
+    },
+    "controllers": {"agae": {"damping": 0.2}},
+}
+
+
+@pytest.fixture(scope="module")
+def city_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cities")
+    (d / "small.yaml").write_text(yaml.safe_dump({"base": "train", "name": "small", "textures": {"tile_px": 256}}))
+    return str(d)
+
+
+def tiny(city_dir):
+    cfg = copy.deepcopy(TINY)
+    cfg["world"]["city_dir"] = city_dir
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory, city_dir):
+    out = tmp_path_factory.mktemp("raw") / "raw"
+    summaries = collect(tiny(city_dir), out, progress=False)
+    return out, summaries
+
+
+def test_tiny_collect_is_valid_raw_data(tiny_run):
+    out, summaries = tiny_run
+    assert validate_raw_dir(out) == []
+    assert [s["sequence"] for s in summaries] == ["train-small-t000", "validation-small-t005"]
+    seq = out / "train" / "train-small-t000"
+    meta = yaml.safe_load((seq / "sequence.yaml").read_text())
+    assert meta["source"] == "sim" and meta["world"] == "small" and meta["split"] == "train"
+    assert meta["rig"]["resolution"] == [64, 48] and meta["rig"]["baseline_m"] == 0.0392
+    assert meta["reference_controller"]["name"] == "agae"
+    assert meta["reference_controller"]["params"] == {"damping": 0.2}
+    assert meta["sensor"]  # the randomised sensor parameters are logged
+    # the world places the window around a portal crossing, and sections cover every recorded frame once
+    covered = [f for s in meta["sections"] for f in range(s["start_frame"], s["end_frame"] + 1)]
+    assert covered == list(range(6))
+    frames = pd.read_csv(seq / "frames.csv")
+    assert len(frames) == 12 and sorted(frames.camera.unique()) == [1, 2]
+    # camera 2 is camera 1 perturbed, frame by frame (quadrant cycle over the traversal's frame index)
+    cam1 = frames[frames.camera == 1].set_index("frame_id")
+    cam2 = frames[frames.camera == 2].set_index("frame_id")
+    cfg = PerturbationConfig()
+    for fid in cam1.index:
+        s1 = Settings(cam1.gain_db[fid], cam1.exposure_us[fid])
+        s2 = perturb(s1, fid + meta["warmup_frames"], meta["seed"], cfg)
+        assert cam2.gain_db[fid] == pytest.approx(s2.gain_db) and cam2.exposure_us[fid] == pytest.approx(s2.exposure_us)
+    assert (cam1.timestamp_ns.to_numpy() == cam2.timestamp_ns.to_numpy()).all()  # synchronised
+
+
+def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
+    out, _ = tiny_run
+    cfg = tiny(city_dir)
+    cfg["collect"]["splits"]["validation"] = None
+    again = tmp_path / "again"
+    collect(cfg, again, progress=False)
+    a, b = out / "train" / "train-small-t000", again / "train" / "train-small-t000"
+    assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
+    assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
+    for p in sorted((a / "cam2").iterdir()):
+        assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
+    cfg["seed"] = 4
+    other = tmp_path / "other"
+    collect(cfg, other, progress=False)
+    assert (other / "train" / "train-small-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
+
+
+@pytest.mark.slow  # spawns two worker processes (each loads numba kernels and builds the city's textures)
+def test_process_pool_gives_the_same_bytes(tiny_run, tmp_path, city_dir):
+    out, _ = tiny_run
+    cfg = tiny(city_dir)
+    cfg["collect"]["n_jobs"] = 2
+    again = tmp_path / "again"
+    collect(cfg, again, progress=False)
+    for seq in ("train/train-small-t000", "validation/validation-small-t005"):
+        a, b = out / seq, again / seq
+        assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
+        assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
+        for p in sorted((a / "cam2").iterdir()):
+            assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
+
+
+def test_failure_leaves_previous_output_untouched(tmp_path, city_dir):
+    out = tmp_path / "raw"
+    (out / "train" / "keep").mkdir(parents=True)
+    (out / "train" / "keep" / "marker").write_text("x")
+    cfg = tiny(city_dir)
+    cfg["world"]["render"]["blur"] = "smeared"  # rejected by the renderer inside the worker, mid-run
+    with pytest.raises(ConfigError, match="world.render.blur"):
+        collect(cfg, out, progress=False)
+    assert (out / "train" / "keep" / "marker").read_text() == "x"
+    assert sorted(p.name for p in out.iterdir()) == ["train"]
+
+
+def _with(path, value, city_dir):
+    cfg = tiny(city_dir)
+    node = cfg
+    for part in path[:-1]:
+        node = node[part]
+    if value is KeyError:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    return cfg
+
+
+@pytest.mark.parametrize(
+    "path, value, key",
+    [
+        (("collect", "n_jobz"), 2, "collect.n_jobz"),
+        (("collect", "warmup_frames"), -1, "collect.warmup_frames"),
+        (("collect", "sensor_randomisation"), 0.9, "collect.sensor_randomisation"),
+        (("collect", "initial_exposure_us"), 10.0, "collect.initial_exposure_us"),
+        (("collect", "reference_controller"), KeyError, "collect.reference_controller"),
+        (("collect", "splits", "train", "frames"), 1, "collect.splits.train.frames"),
+        (("collect", "splits", "train", "n_sequence"), 1, "collect.splits.train.n_sequence"),
+        (("collect", "splits", "holdout"), {}, "collect.splits.holdout"),
+        (("world", "cities", "train"), "atlantis", "world.cities.train"),
+        (("world", "cities", "validation"), KeyError, "world.cities.validation"),
+        (("world", "render", "width"), 0, "world.render.width"),
+        (("controllers", "agae", "damping"), 7.0, "controllers.agae.damping"),
+        (("rig", "width"), 320, "rig.width"),
+        (("rig", "fps"), "fast", "rig.fps"),
+        (("rig", "perturbation"), {"max_fraction": 2.0}, "rig.perturbation.max_fraction"),
+        (("seed",), -1, "seed"),
+        (("sensor",), {"full_well_e": -5.0}, "sensor.full_well_e"),
+    ],
+)
+def test_bad_config_names_the_key(path, value, key, tmp_path, city_dir):
+    with pytest.raises(ConfigError) as e:
+        collect(_with(path, value, city_dir), tmp_path / "raw", progress=False)
+    assert e.value.key == key
+    assert not (tmp_path / "raw").exists()
+
+
+def test_plan_names_and_seeds(city_dir):
+    cfg = tiny(city_dir)
+    cfg["collect"]["splits"]["train"]["n_sequences"] = 3
+    jobs = plan_sequences(cfg)
+    assert [j.name for j in jobs] == ["train-small-t000", "train-small-t001", "train-small-t002", "validation-small-t005"]
+    assert len({j.seed for j in jobs}) == 4
+    assert [j.traversal_frames for j in jobs] == [8, 8, 8, 7]  # warm-up + recorded
+    assert plan_sequences(cfg) == jobs
+
+
+def test_config_file_parses():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    d = yaml.safe_load((root / "conf" / "collect" / "default.yaml").read_text())
+    cfg = CollectConfig.from_dict(d)
+    assert cfg.splits["train"].n_sequences >= 8 and cfg.splits["train"].frames >= 300
+    rig = RigConfig.from_dict(yaml.safe_load((root / "conf" / "rig" / "default.yaml").read_text()))
+    assert rig.baseline_m == 0.0392 and rig.fps == 15.0
