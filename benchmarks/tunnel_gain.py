@@ -30,9 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, exposure_value_ev, norm_to_exposure, norm_to_gain  # noqa: E402
-from expoctl.dataset import load_sample_sets_from_files, predict  # noqa: E402
+from expoctl.net.dataset import load_sample_sets_from_files, predict  # noqa: E402
 from expoctl.errors import InputError  # noqa: E402
-from expoctl.train import load_checkpoint  # noqa: E402
+from expoctl.net.checkpoint import load_checkpoint  # noqa: E402
 
 
 def region_rows(input_gain, input_exp, label_gain, label_exp, pred_gain, pred_exp, tunnel) -> list[dict]:
