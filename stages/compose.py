@@ -12,7 +12,8 @@ import yaml
 
 from expoctl.errors import InputError
 from expoctl.io import write_text
-from stages.common import PROJECT_ROOT, RESOLVED_CONFIG, tracked_run
+from stages.project import PROJECT_ROOT, RESOLVED_CONFIG
+from stages.tracking import tracked_run
 
 
 def compose_config(overrides: list[str], conf_dir=PROJECT_ROOT / "conf") -> dict:

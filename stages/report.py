@@ -1,11 +1,15 @@
-"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report)."""
+"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report), and
+reports/headline.json, the pipeline's one DVC metric (expoctl.report.headline)."""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
-from expoctl.report.results import ReportConfig, build_report
+from expoctl.io import write_json
+from expoctl.net.checkpoint import load_checkpoint
+from expoctl.report.headline import headline_metrics
+from expoctl.report.results import ReportConfig, build_report, load_eval
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -14,8 +18,14 @@ log = logging.getLogger(__name__)
 def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
     rcfg = ReportConfig.from_dict(cfg.get("report"))  # ConfigError before any work
-    written = build_report(root / cfg["paths"]["reports_dir"], rcfg)
-    tracker.log_metrics({"n_figures": len(written) - 1})
+    reports_dir = root / cfg["paths"]["reports_dir"]
+    _, ckpt = load_checkpoint(root / cfg["paths"]["final_model"])  # the network evaluate drove
+    metrics, _, runs = load_eval(reports_dir)
+    headline = headline_metrics(metrics, runs, ckpt.get("metrics", {}).get("val_loss"))
+    written = build_report(reports_dir, rcfg)
+    write_json(headline, reports_dir / "headline.json")
+    written["headline"] = reports_dir / "headline.json"
+    tracker.log_metrics({"n_figures": len(written) - 2})
     for p in written.values():
         tracker.log_artifact(p, artifact_path="report")
     log.info("wrote %s", ", ".join(str(p.relative_to(root)) if p.is_relative_to(root) else str(p)

@@ -22,7 +22,8 @@ from pathlib import Path
 from expoctl.errors import InputError
 from expoctl.selection.saturation_probe import summary_line
 from expoctl.selection.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
-from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
+from stages.common import PROJECT_ROOT, stage_main
+from stages.keys import LAST_ITERATION
 
 log = logging.getLogger(__name__)
 

@@ -101,7 +101,7 @@ def run_trial(cfg: dict, sweep: dict, parent_run_id: str | None) -> float:
     import mlflow
 
     from expoctl.host import host_cpu
-    from stages.common import flatten, git_commit, init_tracking
+    from stages.tracking import flatten, git_commit, init_tracking
     from stages.train import configs, train_from_config
 
     values = sample_trial(sweep["space"], int(sweep["seed"]), int(sweep["trial"]))
@@ -151,7 +151,7 @@ class SweepParentRun(_sweep_callback_base()):
     def on_multirun_start(self, config, **kwargs) -> None:
         from mlflow.tracking import MlflowClient
 
-        from stages.common import git_commit, init_tracking, tracking_uri
+        from stages.tracking import git_commit, init_tracking, tracking_uri
 
         sweep_dir = Path(config.hydra.sweep.dir)
         sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -167,7 +167,7 @@ class SweepParentRun(_sweep_callback_base()):
     def on_multirun_end(self, config, **kwargs) -> None:
         from mlflow.tracking import MlflowClient
 
-        from stages.common import tracking_uri
+        from stages.tracking import tracking_uri
 
         sweep_dir = Path(config.hydra.sweep.dir)
         parent_id = (sweep_dir / PARENT_FILE).read_text().strip()

@@ -37,7 +37,7 @@ log = logging.getLogger("expoctl.train")
 
 
 def _path(p) -> Path:
-    from stages.common import PROJECT_ROOT
+    from stages.project import PROJECT_ROOT
 
     p = Path(p)
     return p if p.is_absolute() else PROJECT_ROOT / p
@@ -166,7 +166,7 @@ def _worker_main() -> None:
         def log_metrics(self, *a, **k): ...
         def log_artifact(self, *a, **k): ...
 
-    from stages.common import load_resolved
+    from stages.project import load_resolved
 
     try:
         run(load_resolved(), _NoTracker())

@@ -1,4 +1,4 @@
-"""A stand-in for stages.common.Tracker: records what a stage logs, so stage tests run without an MLflow store."""
+"""A stand-in for stages.tracking.Tracker: records what a stage logs, so stage tests run without an MLflow store."""
 
 from __future__ import annotations
 

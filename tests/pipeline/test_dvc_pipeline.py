@@ -13,11 +13,11 @@ pytestmark = pytest.mark.slow
 
 
 def _ran(output: str) -> set[str]:
-    return set(re.findall(r"Running stage '([\w-]+)'", output))
+    return set(re.findall(r"Running stage '([\w@-]+)'", output))
 
 
-ITERATION2 = {"collect_iter2", "ingest_iter2", "features_iter2", "labels_iter2", "samples_iter2", "train_iter2"}
-ITERATION3 = {name.replace("_iter2", "_iter3") for name in ITERATION2}
+ITERATION2 = {"collect_iter@2", "ingest_iter@2", "features_iter@2", "labels_iter@2", "samples_iter@2", "train_iter@2"}
+ITERATION3 = {name.replace("@2", "@3") for name in ITERATION2}
 ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", "train", "select_model", "evaluate",
                "report"}
               | ITERATION2 | ITERATION3)
@@ -38,7 +38,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
                 "models/controller.pt", "models/controller.onnx", "reports/train.json", "reports/labels.md",
                 "models/controller_iter2.pt", "reports/iter2/train.json", "models/controller_iter3.pt",
                 "reports/iter3/train.json", "models/controller_final.pt", "models/controller_final.onnx",
-                "reports/select_model.json", "reports/metrics.json",
+                "reports/select_model.json", "reports/metrics.json", "reports/headline.json",
                 "reports/eval/frames.parquet", "reports/results.md"):
         assert (p.root / out).is_file(), out
     metrics = json.loads((p.root / "reports" / "metrics.json").read_text())
@@ -50,6 +50,13 @@ def test_repro_noop_and_per_key_rerun(project_copy):
             n_ok, n_runs = entry["tracking_success"]
             assert 0 <= n_ok <= n_runs and n_runs >= 1
     assert list((p.root / "reports" / "figures").glob("*.png"))
+    # the one DVC metric: a dozen headline numbers that agree with the full tables
+    headline = json.loads((p.root / "reports" / "headline.json").read_text())
+    assert headline["dynamic_min_nfm"]["test"]["viso"]["agae"] == metrics["test"]["agae"]["dynamic"]["viso"]["min_nfm"]
+    n_ok = sum(metrics[city]["learned"]["tracking_success"][0] for city in metrics)
+    assert headline["vo_tracked"]["learned"]["frame_to_frame"] == n_ok
+    shown = json.loads(p.dvc("metrics", "show", "--json").stdout)
+    assert [list(v["data"]) for v in shown.values()] == [["reports/headline.json"]], shown
     # iteration 2: one more training sequence driven by the iteration-1 network, trained on both data sets
     frames2 = pd.read_parquet(p.root / "data" / "iter2" / "frames.parquet")
     assert set(frames["sequence"]) < set(frames2["sequence"])
@@ -101,7 +108,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
     runs = p.stage_runs()
     assert runs["report"] == 3 and runs["evaluate"] == 1 + final_changed and runs["select_model"] == 2
-    assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter2"] == 1 and runs["train_iter3"] == 2
+    assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter@2"] == 1 and runs["train_iter@3"] == 2
 
 
 def test_bad_raw_data_stops_cleanly(project_copy):

@@ -1,45 +1,89 @@
-"""dvc.yaml declares, per stage, exactly the resolved-config keys the stage reads (stages.common.STAGE_KEYS)."""
+"""dvc.yaml declares, per stage, exactly the resolved-config keys the stage reads (stages.keys.STAGE_KEYS).
+
+The stages are read as DVC resolves them (its `foreach` expands the later iterations), not as raw YAML."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 import yaml
 
-from stages.common import STAGE_KEYS, split_stage_name, stage_keys
+from stages.keys import LAST_ITERATION, STAGE_KEYS, split_stage_name, stage_keys, stage_name
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
+ITERATION_STAGES = ("collect", "ingest", "features", "labels", "samples", "train")
 
 
-def _declared_keys(stage: dict) -> list[str]:
-    keys = []
-    for entry in stage.get("params", []):
-        if isinstance(entry, dict) and "configs/resolved.yaml" in entry:
-            keys.extend(entry["configs/resolved.yaml"])
-    return keys
+@pytest.fixture(scope="module")
+def stages() -> dict:
+    """{stage name: (cmd, config keys declared as params, deps, outs, metrics)} as DVC resolves dvc.yaml."""
+    from dvc.repo import Repo
+
+    out = {}
+    for s in Repo(str(PROJECT_ROOT)).index.stages:
+        params = [d for d in s.deps if type(d).__name__ == "ParamsDependency"]
+        keys = [k for d in params if Path(d.def_path).name == "resolved.yaml" for k in d.params]
+        other = {Path(d.def_path).name: list(d.params) for d in params if Path(d.def_path).name != "resolved.yaml"}
+        deps = [str(d) for d in s.deps if type(d).__name__ != "ParamsDependency"]
+        out[s.name] = (s.cmd, keys, other, deps, [str(o) for o in s.outs if not o.metric],
+                       [str(o) for o in s.outs if o.metric])
+    return out
 
 
-def test_every_stage_declares_its_config_keys():
-    stages = yaml.safe_load((PROJECT_ROOT / "dvc.yaml").read_text())["stages"]
-    for name, stage in stages.items():
+def test_every_stage_declares_its_config_keys(stages):
+    assert stages["compose"][2] == {"params.yaml": ["overrides"]} and stages["compose"][1] == []
+    for name, (cmd, keys, _, _, _, _) in stages.items():
         if name == "compose":
-            assert stage["params"] == ["overrides"]
             continue
         base, n = split_stage_name(name)
         assert base in STAGE_KEYS, f"stage {name} has no STAGE_KEYS entry"
-        assert sorted(_declared_keys(stage)) == sorted(stage_keys(name)), name
+        # an iteration-2 stage repeats its own block's entry where later iterations name an earlier one
+        assert sorted(set(keys)) == sorted(set(stage_keys(name))), name
         expected_cmd = f"python -m stages.{base}" + (f" --iteration {n}" if n > 1 else "")
-        assert stage["cmd"] == expected_cmd, name
+        assert cmd == expected_cmd, name
 
 
-def test_stage_keys_exist_in_every_scale():
+def test_every_iteration_has_its_stages_with_its_own_outputs(stages):
+    for n in range(2, LAST_ITERATION + 1):
+        for base in ITERATION_STAGES:
+            assert stage_name(base, n) in stages, f"{stage_name(base, n)} missing from dvc.yaml"
+        collect = stages[stage_name("collect", n)]
+        previous_model = "models/controller.pt" if n == 2 else f"models/controller_iter{n - 1}.pt"
+        assert previous_model in collect[3] and collect[4] == [f"data/raw_iter{n}"]
+        ingest = stages[stage_name("ingest", n)]
+        assert set(ingest[3]) >= {"data/raw"} | {f"data/raw_iter{k}" for k in range(2, n + 1)}
+        train = stages[stage_name("train", n)]
+        assert train[4] == [f"models/controller_iter{n}.pt", f"models/controller_iter{n}.onnx",
+                            f"reports/iter{n}/train.json"]
+    assert not any(name.startswith(tuple(f"{b}_iter@{LAST_ITERATION + 1}" for b in ITERATION_STAGES))
+                   for name in stages)
+
+
+def test_one_small_headline_metric(stages):
+    """`dvc metrics show` prints only reports/headline.json; the full tables are outputs."""
+    declared = {name: m for name, (*_, m) in stages.items() if m}
+    assert declared == {"report": ["reports/headline.json"]}
+    assert "reports/metrics.json" in stages["evaluate"][4] and "reports/train.json" in stages["train"][4]
+
+
+def test_stage_keys_exist_in_every_scale(stages):
     from stages.compose import compose_config
-    from stages.common import select_keys
+    from stages.keys import select_keys
 
     for scale in ("fixture", "default", "paper"):
         cfg = compose_config([f"scale={scale}"])
         assert cfg["scale_name"] == scale
-        stages = yaml.safe_load((PROJECT_ROOT / "dvc.yaml").read_text())["stages"]
         for name in stages:
             if name != "compose":
                 select_keys(cfg, stage_keys(name))  # raises if a key is missing
+
+
+def test_raw_dvc_yaml_has_no_copied_iteration_blocks():
+    doc = yaml.safe_load((PROJECT_ROOT / "dvc.yaml").read_text())
+    raw = doc["stages"]
+    assert not [name for name in raw if name[-1].isdigit()], "write later iterations through foreach"
+    for base in ITERATION_STAGES:
+        assert raw[f"{base}_iter"]["foreach"] == "${later_iterations}", base
+    (iterations,) = [v["later_iterations"] for v in doc["vars"] if "later_iterations" in v]
+    assert sorted(iterations, key=int) == [str(n) for n in range(2, LAST_ITERATION + 1)]

@@ -79,6 +79,11 @@ def test_report_stage_writes_tables_and_figures(evaluated):
     for fig in ("fig7_tunnel_timeline", "fig6_image_strips", "nfm_bars_test_dynamic"):
         assert (root / f"reports/figures/{fig}.png").stat().st_size > 5000
         assert f"figures/{fig}.png" in md
+    headline = json.loads((root / "reports/headline.json").read_text())
+    metrics = json.loads((root / "reports/metrics.json").read_text())
+    assert headline["val_loss"] is None  # the fixture's network was never trained
+    assert headline["dynamic_min_nfm"]["test"]["orb"]["learned"] == metrics["test"]["learned"]["dynamic"]["orb"]["min_nfm"]
+    assert str(root / "reports/headline.json") in tracker.artifacts
 
 
 def test_missing_model_fails_with_a_message(tmp_path, monkeypatch):

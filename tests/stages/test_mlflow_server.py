@@ -87,7 +87,7 @@ def test_server_serves_one_run_per_controller_and_city(tmp_path, mlflow_server, 
     use_real_or_test_sensor(monkeypatch)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", mlflow_server)
     from stages import evaluate as stage
-    from stages.common import tracked_run
+    from stages.tracking import tracked_run
 
     root = tmp_path / "proj"
     cfg = make_fixture_project(root, controllers=["agae", "oracle"])

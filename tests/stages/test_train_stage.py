@@ -44,7 +44,7 @@ def mlflow_store(tmp_path, monkeypatch):
 
 
 def test_stage_writes_model_onnx_report_and_logs_to_mlflow(tmp_path, mlflow_store):
-    from stages.common import tracked_run
+    from stages.tracking import tracked_run
 
     cfg = make_cfg(tmp_path)
     with tracked_run("train", cfg) as tracker:

@@ -1,0 +1,114 @@
+"""MLflow tracking for the stages: one run per stage execution, with the stage's config keys as params.
+
+The store is MLFLOW_TRACKING_URI if set, else an SQLite file in the project root (MLflow 3.13+ refuses a plain
+./mlruns file store). `init_tracking` creates it; call it once before any parallel fan-out.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+from expoctl.host import host_cpu
+from stages.keys import config_hash, select_keys, stage_keys
+from stages.project import PROJECT_ROOT, main_project_root
+
+EXPERIMENT_NAME = "expoctl"
+
+
+def tracking_uri() -> str:
+    """MLFLOW_TRACKING_URI if set, else the embedded SQLite store at an absolute path in the project root."""
+    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{main_project_root() / 'mlflow.db'}"
+
+
+def init_tracking(experiment: str = EXPERIMENT_NAME) -> str:
+    """Create the store and the experiment (artifacts beside the store) if missing; return the experiment id.
+
+    Run this once before any parallel fan-out: two processes migrating a fresh SQLite store at once race.
+    """
+    import mlflow
+
+    mlflow.set_tracking_uri(tracking_uri())
+    exp = mlflow.get_experiment_by_name(experiment)
+    if exp is not None:
+        return exp.experiment_id
+    artifacts = None
+    if tracking_uri().startswith("sqlite:"):
+        artifacts = (main_project_root() / "mlartifacts").as_uri()
+    return mlflow.create_experiment(experiment, artifact_location=artifacts)
+
+
+def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dict → {"a.b.c": value}; lists become their JSON text."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, key + "."))
+        elif isinstance(v, (list, tuple)):
+            out[key] = json.dumps(v, default=str)
+        else:
+            out[key] = v
+    return out
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT, capture_output=True, text=True,
+                              timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+class Tracker:
+    """The MLflow calls a stage makes, on the active run (kept small so stages stay testable with a fake)."""
+
+    def __init__(self, mlflow_module):
+        self._mlflow = mlflow_module
+
+    def log_params(self, params: dict[str, Any]) -> None:
+        flat = {k: (str(v)[:6000] if v is not None else "null") for k, v in flatten(params).items()}
+        items = list(flat.items())
+        for i in range(0, len(items), 100):  # MLflow caps a batch at 100 params
+            self._mlflow.log_params(dict(items[i : i + 100]))
+
+    def log_metrics(self, metrics: dict[str, float], step: int | None = None) -> None:
+        clean = {k: float(v) for k, v in flatten(metrics).items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        if clean:
+            self._mlflow.log_metrics(clean, step=step)
+
+    def log_artifact(self, path: str | os.PathLike, artifact_path: str | None = None) -> None:
+        p = Path(path)
+        if p.is_dir():
+            self._mlflow.log_artifacts(str(p), artifact_path=artifact_path or p.name)
+        elif p.exists():
+            self._mlflow.log_artifact(str(p), artifact_path=artifact_path)
+
+    def set_tags(self, tags: dict[str, Any]) -> None:
+        self._mlflow.set_tags({k: str(v) for k, v in tags.items()})
+
+    @property
+    def run_id(self) -> str:
+        return self._mlflow.active_run().info.run_id
+
+
+@contextmanager
+def tracked_run(stage: str, cfg: dict[str, Any]) -> Iterator[Tracker]:
+    """One MLflow run for one stage execution, with params = the stage's config keys."""
+    import mlflow
+
+    experiment_id = init_tracking()
+    sub = select_keys(cfg, stage_keys(stage))
+    with mlflow.start_run(experiment_id=experiment_id, run_name=stage):
+        tracker = Tracker(mlflow)
+        tracker.set_tags({"stage": stage, "git_commit": git_commit(), "config_hash": config_hash(sub),
+                          "scale": cfg.get("scale_name", "unknown"), "host_cpu": host_cpu()})
+        tracker.log_params(sub)
+        t0 = time.perf_counter()
+        yield tracker
+        tracker.log_metrics({"stage_seconds": time.perf_counter() - t0})
