@@ -1,4 +1,4 @@
-"""Gain and exposure ranges and the network's [0, 1] scaling (DESIGN: decisions that hold everywhere).
+"""Gain and exposure ranges and the network's [0, 1] scaling (docs/pipeline.md, Conventions that hold everywhere).
 
 Two exposure scalings (`EXPOSURE_SCALES`):
 - "linear" — the paper's (e − 75) / (30000 − 75). Labels and samples always store this one (the data contract).
