@@ -1,6 +1,6 @@
 """AG+AE model vs the authors' recordings: per-frame change of the exposure product on camera 1 (not a test).
 
-controllers.md §1 gives the statistics of the real Blackfly S AG+AE in Tomasi et al.'s recordings: the exposure
+docs/controllers.md gives the statistics of the real Blackfly S AG+AE in Tomasi et al.'s recordings: the exposure
 product t·gain changed by a median 0.015–0.033 EV per frame, p99 0.16–0.29 EV, at most ~0.5 EV. This reads the raw
 sequences a `collect` run wrote (camera 1 = the reference controller, AG+AE in iteration 1) and prints the same
 statistics per sequence and over all, so the simulated loop's speed can be checked against the real camera's.

@@ -44,8 +44,8 @@ from expoctl.world import load_world_city  # noqa: E402
 from stages.compose import compose_config  # noqa: E402
 
 RECORDING = ROOT.parent / "shared" / "data" / "authors_settings" / "data_32.csv"
-RECORDED_EXIT_START = 60  # the recorded pass: entry at frame 0, exit at ~73–125 (README of the data)
-RECORDED_OUTDOOR_US = (1450.0, 2300.0)  # camera 1 outdoors at 0 dB before the entry and after the exit (data README)
+RECORDED_EXIT_START = 60  # the recorded pass: entry at frame 0, exit at ~73–125 (docs/calibration.md)
+RECORDED_OUTDOOR_US = (1450.0, 2300.0)  # camera 1 outdoors at 0 dB before the entry and after the exit (docs/calibration.md)
 OLD_LOOP = {"damping": 0.2, "max_brighten_ev_per_frame": 0.5, "max_darken_ev_per_frame": 0.5}
 
 

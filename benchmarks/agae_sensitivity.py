@@ -1,6 +1,6 @@
 """Is AG+AE's VO survival an artefact of our AG+AE calibration? The baseline's unknown constants, swept (not a test).
 
-Two constants of the AG+AE model are not known for the authors' camera (controllers.md §1):
+Two constants of the AG+AE model are not known for the authors' camera (docs/controllers.md, AG+AE model):
 - `damping`: 0.2 per the Spinnaker SDK header, 0.5 per the BFS web page;
 - the per-frame rate limit (`--max-step-ev` sets both `max_darken_ev_per_frame` and `max_brighten_ev_per_frame`;
   since the calibration (docs/calibration.md) the defaults are fitted: 0.178 darkening, 0.51 brightening). The authors' recordings changed t·gain by at most ~0.5 EV per frame, but

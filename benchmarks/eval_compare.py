@@ -1,4 +1,4 @@
-"""Paired comparison of controllers from evaluate outputs (not a test): the README's error bars and brightness figures.
+"""Paired comparison of controllers from evaluate outputs (not a test): the error bars and brightness figures in docs/.
 
 Every controller of an evaluation drives the same windows with the same seeds, so per dynamic section the minimum NFM
 of a controller and of AG+AE form a pair. This prints, per city and front end, the mean minimum NFM of each controller,

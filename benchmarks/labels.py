@@ -1,4 +1,4 @@
-"""Speed of the labels and samples stages' library code at paper scale (DESIGN: ~100k frames).
+"""Speed of the labels and samples stages' library code at paper scale (~100k frames).
 
 Synthetic tables (random counts and settings; the numbers do not matter, the table sizes do): S sequences × F frames,
 both cameras, one front end. Times compute_labels, compute_label_stats + render_markdown, and build_samples; prints

@@ -1,6 +1,6 @@
 """Realism of the simulated images for feature matching: ORB inlier counts between consecutive frames (not a test).
 
-The simulator spec (simulator.md, Textures) gives the target from a prototype: ORB with 1,500 features on 640×480-class
+docs/simulator.md (World design targets) gives the target from a prototype: ORB with 1,500 features on 640×480-class
 images, ~120–280 inlier matches between consecutive frames on textured road scenes (near-flat walls ~50 keypoints).
 This drives camera 1 of the simulated rig under AG+AE through a whole traversal passage of a tunnel (closed loop, every
 frame rendered, `--before-s` seconds ahead of the entry to `--after-s` past the exit) and, every `--every` frames,

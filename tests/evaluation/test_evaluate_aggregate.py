@@ -1,4 +1,4 @@
-"""Sections, per-section statistics and metrics.json (DESIGN schema) from hand-made frame rows."""
+"""Sections, per-section statistics and metrics.json (docs/evaluation.md schema) from hand-made frame rows."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Gain and exposure ranges and the network's [0, 1] scaling (DESIGN: decisions that hold everywhere).
+"""Gain and exposure ranges and the network's [0, 1] scaling (docs/pipeline.md, Conventions that hold everywhere).
 
 Two exposure scalings (`EXPOSURE_SCALES`):
 - "linear" — the paper's (e − 75) / (30000 − 75). Labels and samples always store this one (the data contract).
@@ -6,7 +6,7 @@ Two exposure scalings (`EXPOSURE_SCALES`):
   A camera's exposure is a photographic, ratio quantity (gain in dB already is one). Under the linear scaling every
   exposure below ~1 ms maps into [0, 0.03], so in daylight the exposure planes the network sees are all but constant
   and an L1 loss on linear values is dominated by the few long tunnel exposures. Measured on the default-scale data
-  (README, issue 6): a network on the linear scaling barely beat the constant predictor. A model records which
+  (docs/network.md, issue 6): a network on the linear scaling barely beat the constant predictor. A model records which
   scaling it was trained with (`model.exposure_scale`), and training and deployment convert through these functions.
 """
 

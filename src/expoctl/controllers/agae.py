@@ -1,6 +1,6 @@
-"""AG+AE: a model of the FLIR Blackfly S (Spinnaker) built-in auto gain + auto exposure (controllers.md §1).
+"""AG+AE: a model of the FLIR Blackfly S (Spinnaker) built-in auto gain + auto exposure (docs/controllers.md).
 
-Loop, per frame (controllers.md §1 "Simulator model", [our assumption, to be calibrated]):
+Loop, per frame (docs/controllers.md, AG+AE model: the model's steps and how its constants were fitted):
 1. Meter m = mean of the *linear* image (camera response inverted) over the metering region (average / spot ≈ 3 % /
    partial ≈ 11 %, centred, or a fractional ROI).
 2. The frame was shot with a known product P_f = t·10^(g/20) (the camera knows its own settings, like chunk data),

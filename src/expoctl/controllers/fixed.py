@@ -1,4 +1,4 @@
-"""Fixed-parameter controller (controllers.md §7): one gain/exposure for the whole run, a lower bound that fails
+"""Fixed-parameter controller (docs/controllers.md): one gain/exposure for the whole run, a lower bound that fails
 by construction at tunnel portals.
 
 Two ways to choose the values:

@@ -1,4 +1,4 @@
-"""Mean-intensity proportional auto-exposure (Zhang et al.'s kMeanIntensity rule, controllers.md §4):
+"""Mean-intensity proportional auto-exposure (Zhang et al.'s kMeanIntensity rule, docs/controllers.md, Mean intensity):
 t ← t + k·t·(target/mean − 1) with k = 0.2 and target 127.5, i.e. the exposure product is multiplied by
 1 + k·(target/mean − 1), computed from the settings the frame was captured with. The product is split exposure-first
 (gain stays 0 dB until exposure reaches its upper limit, then gain supplies the rest).

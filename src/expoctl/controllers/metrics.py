@@ -1,11 +1,11 @@
-"""Image metrics shared by the baseline controllers (controllers.md §1–§4).
+"""Image metrics shared by the baseline controllers (docs/controllers.md, Image metrics).
 
 Every function takes an 8-bit image (H×W×3 RGB or H×W grey) or a float array and returns finite numbers for any
 input, including all-black and all-saturated frames: controllers must never emit NaN.
 
 Conventions
 - "grey" is the plain mean of the R, G, B channels as float64 on the 0–255 scale (Shin's MATLAB averages the channels;
-  see controllers.md §2).
+  see docs/controllers.md, Shin et al. 2019).
 - "linear" values are on [0, 1] of full scale, i.e. after inverting the camera response
   (`expoctl.camera.response`).
 """

@@ -1,10 +1,10 @@
-"""Shim et al. gamma-gradient exposure control (controllers.md §3).
+"""Shim et al. gamma-gradient exposure control (docs/controllers.md, Shim gamma-gradient).
 
 One frame per decision: the current grey frame is gamma-remapped with each γ ∈ Γ, each remap is scored by Shim's
 gradient information M (mapped Sobel gradient, `metrics.shim_gradient_information`), and exposure moves towards
 the γ that maximised it.
 
-Convention trap (controllers.md §3): Mehta's 2018 code maps I → I^(1/γ) (γ > 1 brightens) while Zhang's Shim 2014
+Convention trap (docs/controllers.md): Mehta's 2018 code maps I → I^(1/γ) (γ > 1 brightens) while Zhang's Shim 2014
 maps I → I^γ (γ < 1 brightens). Here each variant keeps its source's convention and `remap_gamma(..., convention)`
 makes it explicit; `test_shim.py` checks that both brighten a dark scene.
 

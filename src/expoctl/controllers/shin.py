@@ -1,4 +1,4 @@
-"""Shin et al. 2019 noise-aware exposure control, run online (controllers.md §2).
+"""Shin et al. 2019 noise-aware exposure control, run online (docs/controllers.md, Shin et al. 2019).
 
 Metric: `metrics.shin_score` = α·K_g·G + (1−α)·E − β·N with the MATLAB constants (α 0.4, K_g 2, β 0.4, λ 1e3,
 δ 0.06, 10×10 grid). Search: Nelder–Mead (reflection 1, expansion 2, contraction 0.5, shrink 0.5, stop when the f

@@ -1,4 +1,4 @@
-"""From per-frame evaluation rows to per-section statistics and `reports/metrics.json` (DESIGN contract).
+"""From per-frame evaluation rows to per-section statistics and `reports/metrics.json` (docs/evaluation.md).
 
 A *section* is a maximal run of consecutive frames of one window with the same ground-truth label (static or
 dynamic). The NFM of frame t is the inlier count of the pair (t−1, t) and belongs to frame t's section. Per section:
@@ -87,7 +87,7 @@ def _mean_or_none(col: pd.Series) -> float | None:
 
 
 def validate_metrics(metrics: Any, controllers=CONTROLLER_NAMES, splits=ROUTE_SPLITS) -> list[str]:
-    """Problems with a metrics.json object against the DESIGN schema (empty list = valid)."""
+    """Problems with a metrics.json object against the schema in docs/evaluation.md (empty list = valid)."""
     problems: list[str] = []
     if not isinstance(metrics, dict):
         return [f"top level must be an object, got {type(metrics).__name__}"]

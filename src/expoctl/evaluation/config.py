@@ -104,7 +104,7 @@ class EvaluateConfig:
             kw["render_size"] = (int(rs[0]), int(rs[1]))
         fronts = d.get("frontends", list(FRONTENDS))
         if isinstance(fronts, str) or not isinstance(fronts, (list, tuple)) or sorted(fronts) != sorted(FRONTENDS):
-            # metrics.json always carries all four front-end keys (DESIGN), so both front ends always run
+            # metrics.json always carries all four front-end keys (docs/evaluation.md), so both front ends always run
             raise ConfigError(f"{key}.frontends", f"must list both front ends {list(FRONTENDS)}, got {fronts!r}")
         kw["frontends"] = tuple(fronts)
         vo = d.get("vo") or {}

@@ -9,7 +9,7 @@ SumLog: its parameters are tuned here, once per front end, before the fan-out, o
 training split (data/frames.parquet → the raw PNGs), over the grid `features.sumlog`, maximising total inlier matches
 (`expoctl.features.sumlog.tune_sumlog`); the result is written to reports/eval/sumlog.json.
 
-Outputs (`write_outputs`): reports/metrics.json (DESIGN schema), reports/eval/frames.parquet (per frame per run),
+Outputs (`write_outputs`): reports/metrics.json (docs/evaluation.md), reports/eval/frames.parquet (per frame per run),
 runs.parquet (per run: VO success, failed_at, ATE/RPE, timing), sections.parquet (per section statistics),
 sumlog.json, thumbs/<run_id>.npz (frames around the portals, for the report's image strips).
 

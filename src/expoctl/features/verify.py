@@ -2,7 +2,7 @@
 
 A match is an inlier when both points lie within `threshold_px` of the epipolar line the estimated fundamental
 matrix F assigns them (OpenCV's error is max(d₁², d₂²) against threshold², i.e. the larger of the two point-to-line
-distances). Defaults follow DESIGN.md: 3 px, confidence 0.99.
+distances). Defaults (docs/features.md, Geometric verification): 3 px, confidence 0.99.
 
 Determinism: OpenCV's classic FM_RANSAC samples with a fixed internal RNG (cv2.setRNGSeed has no effect on it), so we
 make the seed matter by presenting the correspondences in a seed-determined order (the sampler draws indices, so a

@@ -2,7 +2,7 @@
 
 Both cameras see (almost) the same scene at each time step, so each of the network's three input frames may come
 from either camera; all eight combinations share the label of t. Targets are scaled linearly to [0, 1] with
-`expoctl.camera.ranges` (DESIGN: one scaling for the whole project). The split comes from the frames table, which
+`expoctl.camera.ranges` (one scaling throughout: docs/pipeline.md). The split comes from the frames table, which
 assigns one split per sequence; a sequence seen in two splits is an error (splits are by sequence, never by frame).
 """
 

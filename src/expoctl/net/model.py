@@ -9,7 +9,7 @@ Layout (defaults = the authors' sizes at 224×224):
 `output: residual` (a deviation from the paper, which found absolute regression better than regressing a change):
 the two outputs are added to frame t's normalised settings, read from its constant planes. Targets and loss stay
 absolute; only the parameterisation changes, so an untrained network is the hold predictor. On our CPU budget (about
-1/1000 of the paper's sample-epochs) the absolute network did not get past a constant predictor (README, Results).
+1/1000 of the paper's sample-epochs) the absolute network did not get past a constant predictor (docs/network.md).
 
 The authors flatten a 1×1 map after a fixed 7×7 fourth conv, which only works near 224×224. Here the fourth kernel
 K4 is computed from the input size as the whole remaining map (7×7 at 224, 3×3 at 128, …), so the fourth conv always

@@ -1,6 +1,6 @@
 """The one preprocessing path from camera frames to the network's 15-channel input (training and deployment).
 
-Paper bug 3 (specs/paper_protocol.md): the authors scaled the gain/exposure planes to 0–255 in training but 0–1 in
+Paper bug 3 (docs/network.md): the authors scaled the gain/exposure planes to 0–255 in training but 0–1 in
 deployment, and deployed on BGR. Here both training (`expoctl.net.dataset`) and the deployed controller
 (`expoctl.controllers.learned`) call exactly these two functions:
 

@@ -1,4 +1,4 @@
-"""Raw dual-camera sequences: the on-disk format a real rig or the simulator's `collect` writes (DESIGN.md).
+"""Raw dual-camera sequences: the on-disk format a real rig or the simulator's `collect` writes (docs/raw_format.md).
 
 ```
 <sequence>/sequence.yaml   source (sim|rig), rig{baseline_m, fps, resolution [w, h], intrinsics{fx, fy, cx, cy}},

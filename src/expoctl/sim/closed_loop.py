@@ -1,6 +1,6 @@
 """Closed loop: one or two simulated cameras driven frame by frame by controllers.
 
-Order of events at frame t (one frame of actuation latency, DESIGN "decisions that hold everywhere"):
+Order of events at frame t (one frame of actuation latency, docs/pipeline.md, Conventions that hold everywhere):
   1. each camera captures frame t with the settings it was given for t;
   2. camera 1's controller sees (image_t, settings_t) and returns the settings for t+1;
   3. camera 2's settings for t+1 are either the perturbation of camera 1's settings for t+1 (the paper's

@@ -9,7 +9,7 @@ camera 1's settings perturbed through the paper's quadrant cycle (`expoctl.sim.p
   data is rich in the portals that matter; with `frames: null` it is the whole closed route (validation / test).
 - camera 1's controller first runs `warmup_frames` unrecorded frames (the rig was already running).
 
-Output: `<out_dir>/<split>/<sequence>/` in the DESIGN raw format, written through `SequenceWriter` (atomic per
+Output: `<out_dir>/<split>/<sequence>/` in the docs/raw_format.md format, written through `SequenceWriter` (atomic per
 sequence). The whole `out_dir` is also built beside the target and swapped in only when every sequence succeeded,
 so a failed or interrupted run leaves the previous data untouched and no stale sequences survive a config change.
 

@@ -1,4 +1,4 @@
-"""The oracle controller (simulator only; controllers.md §9): the greedy one-step upper bound.
+"""The oracle controller (simulator only; docs/controllers.md, The oracle): the greedy one-step upper bound.
 
 At frame t it renders frame t+1 for every candidate (gain, exposure) from the same pose, with the same sensor noise
 the camera will really get at t+1 (`sensor_rng(seed, camera, t+1)`), and scores each candidate image against frame
@@ -11,7 +11,7 @@ Objective (`objective`):
   already badly exposed frame t outscores a jump to a good exposure (an overexposed frame t matches an equally
   overexposed t+1 best), so it locks into overexposure and lost VO track on both windows (dynamic ORB minimum NFM
   12 / 11 vs AG+AE 87 / 132) — no upper bound.
-- "hybrid" (default; controllers.md §9 and the network's own training target M_hybrid, with perfect one-step
+- "hybrid" (default; docs/controllers.md and the network's own training target M_hybrid, with perfect one-step
   knowledge): the average of the match-best and the feature-best candidate's settings (`hybrid_feat_weight` on the
   latter, in the linearly scaled ranges the labels use). The feature term pulls it out of such lock-ins while the
   match term keeps transitions gradual. Same windows: tracked both, dynamic ORB minimum 89 / 177, median 464 / 329
@@ -55,7 +55,7 @@ class OracleParams:
     match_width: int = 320  # ORB working width for the candidate matching (height keeps the aspect ratio)
     match_nfeatures: int = 1000
     warmup_frames: int = 10  # evaluate runs the oracle with min(this, evaluate.warmup_frames) warm-up frames
-    objective: str = "hybrid"  # hybrid (controllers.md §9) | match (issue 7's rule); see the module docstring
+    objective: str = "hybrid"  # hybrid (docs/controllers.md) | match (issue 7's rule); see the module docstring
     hybrid_feat_weight: float = 0.5  # hybrid: weight of the feature-best candidate's settings (labels' M_hybrid)
 
     @classmethod

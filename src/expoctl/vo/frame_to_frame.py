@@ -1,4 +1,4 @@
-"""Monocular frame-to-frame visual odometry for the tracking-success test (paper_protocol.md, Evaluation).
+"""Monocular frame-to-frame visual odometry for the tracking-success test (docs/evaluation.md, Tracking-success test).
 
 Per consecutive pair: ORB features (OpenCV), brute-force Hamming matching with cross-check, essential matrix by
 RANSAC (cv2.findEssentialMat, known intrinsics K), relative pose by cv2.recoverPose. The tracked-inlier count of a

@@ -1,4 +1,4 @@
-"""The libviso2-style feature front end (clean room from specs/libviso2_matcher.md), one module per step.
+"""The libviso2-style feature front end (clean room; docs/features.md), one module per step.
 
 `frontend` (extract, match, count: the `VisoFrontEnd`), `params` (the `features.viso` config), `filters` (Sobel,
 blob and corner responses), `nms`, `descriptors`, `match` (circle matching, flow prior, refinement), `sad`,

@@ -1,4 +1,4 @@
-"""libviso2-style feature front end (flow / monocular case), written clean room from specs/libviso2_matcher.md.
+"""libviso2-style feature front end (flow / monocular case), written clean room (docs/features.md).
 
 Pipeline per image (`extract`): half-resolution image → 5×5 Sobel du/dv (uint8), blob and corner responses → block
 NMS, dense (n = nms_n) and sparse (n = 3·nms_n) → 32-byte descriptors; full-resolution du/dv for refinement.

@@ -1,6 +1,6 @@
 """Parameters of the libviso2-style matcher (flow / monocular case), with validation.
 
-Names follow libviso2's own parameter names (as in specs/libviso2_matcher.md §1 and the `params` field of the
+Names follow libviso2's own parameter names (as in docs/features.md, Parameters, and the `params` field of the
 reference numbers), so a reference run maps onto this dict one to one. Distances are in full-resolution pixels.
 """
 
