@@ -8,7 +8,10 @@ probe off would be the same), val loss and `val_follow` of the final network, th
 VO successes of both (frame to frame; against the map), and the median exposure-product offset of ours from AG+AE
 over every frame they both drove (EV, paired frame by frame).
 
-    .venv/bin/python benchmarks/seed_summary.py [--json OUT] SEED=DIR [SEED=DIR ...]
+    .venv/bin/python benchmarks/seed_summary.py [--json OUT] [--prior JSON] SEED=DIR [SEED=DIR ...]
+
+`--prior` adds the rows of an earlier `--json` output for seeds whose checkouts are gone (a seed given as SEED=DIR
+replaces its prior row).
 """
 
 from __future__ import annotations
@@ -43,7 +46,9 @@ def seed_row(seed: str, root: Path) -> dict:
            "probe": {k: bool(v.get("passes")) for k, v in probe.items()},
            "probe_max_clipped": {k: max(s["final_saturated_frac"] for st in v["starts"].values() for s in st)
                                  for k, v in probe.items()},
-           "val_loss": tr["val_loss"], "val_follow": tr["val_follow"]}
+           "val_loss": tr["val_loss"], "val_follow": tr["val_follow"],
+           # open-loop signs of a collapse to "hold the input settings", known before any closed loop
+           "hold_val_loss": tr.get("hold_val_loss"), "best_epoch": tr.get("best_epoch")}
     sections = pd.read_parquet(rep / "eval" / "sections.parquet")
     dyn = sections[sections["section"] == "dynamic"]
     for city in CITIES:
@@ -69,10 +74,18 @@ def seed_row(seed: str, root: Path) -> dict:
     return row
 
 
+def _vs_hold(row: dict) -> str:
+    """Validation loss over the hold-the-inputs predictor's; above 1 the network is worse than holding."""
+    if row.get("hold_val_loss") is None:
+        return "—"
+    return f"{row['val_loss'] / row['hold_val_loss']:.2f} ({row['best_epoch']})"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", help="SEED=DIR: a pipeline checkout whose reports/ the seed's run wrote")
     ap.add_argument("--json", help="write the rows here")
+    ap.add_argument("--prior", help="an earlier --json output: its rows for seeds not given here are kept")
     args = ap.parse_args(argv)
     rows, problems = [], []
     for spec in args.runs:
@@ -81,19 +94,29 @@ def main(argv=None) -> int:
             problems.append(f"{spec}: expected SEED=DIR with DIR/reports/select_model.json")
             continue
         rows.append(seed_row(seed, Path(d)))
+    if args.prior:
+        try:
+            prior = json.loads(Path(args.prior).read_text())
+        except (OSError, ValueError) as exc:
+            problems.append(f"{args.prior}: cannot read the prior rows ({exc})")
+            prior = []
+        given = {r["seed"] for r in rows}
+        rows = [r for r in prior if r.get("seed") not in given] + rows
+        rows.sort(key=lambda r: int(r["seed"]) if str(r["seed"]).isdigit() else str(r["seed"]))
     if problems:
         print("seed_summary: " + "\n  ".join(problems), file=sys.stderr)
         return 2
     print("| seed | chosen (probe on every candidate) | val loss | follow | val ORB | val viso | test ORB | test viso "
-          "| VO ours (f2f; map) | VO AG+AE | EV offset val / test |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|")
+          "| VO ours (f2f; map) | VO AG+AE | EV offset val / test | val loss / hold (best epoch) |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|---:|")
     for r in rows:
         mins = " | ".join(f"{r[f'{c}_{n}_min'][0]:.0f} / {r[f'{c}_{n}_min'][1]:.0f} ({r[f'{c}_{n}_won']})"
                           for c in CITIES for _, n in FRONT_ENDS)
         probe = ", ".join(f"{k[-1]}: {'pass' if v else 'FAIL'} {r['probe_max_clipped'][k]:.0%}"
                           for k, v in r["probe"].items())
         print(f"| {r['seed']} | {r['chosen']} ({probe}) | {r['val_loss']:.4f} | {r['val_follow']:.2f} | {mins} "
-              f"| {r['vo_learned']} | {r['vo_agae']} | {r['validation_ev_offset']:+.2f} / {r['test_ev_offset']:+.2f} |")
+              f"| {r['vo_learned']} | {r['vo_agae']} | {r['validation_ev_offset']:+.2f} / {r['test_ev_offset']:+.2f} "
+              f"| {_vs_hold(r)} |")
     if args.json:
         out = Path(args.json)
         tmp = out.with_suffix(out.suffix + ".tmp")
