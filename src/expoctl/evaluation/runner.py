@@ -106,11 +106,14 @@ def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_ke
                  plan_key: str, fps: float, warmup_frames: int) -> list[Window]:
     """The windows `plan` asks for on `world.cities.<city_key>`, labelled `label` (their route_split; it also seeds
     the traversals and noise, so two labels never share a window). `plan_key` is the config key errors name."""
-    from expoctl.sim.collect import config_seed, derive_seed
+    from expoctl.config_reader import Section
+    from expoctl.sim.collect import derive_seed, read_seed
     from expoctl.world import load_city_cached
     from expoctl.world.cities import resolve_city_name
 
-    base_seed = config_seed(cfg)
+    top = Section(cfg, "")
+    base_seed = read_seed(top)
+    top.problems.raise_if_any()
     world = cfg.get("world") or {}
     city_dir = world.get("city_dir")
     if city_dir is not None:
@@ -230,6 +233,7 @@ def _controller_params(cfg: dict, name: str) -> dict:
 def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     """Render and evaluate one run (runs in a worker process)."""
     import expoctl.sim.oracle as oracle_mod
+    from expoctl.camera.sensor import SensorConfig
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
     from expoctl.evaluation.run import WindowFrames, drive_window
@@ -249,7 +253,7 @@ def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     city = load_city_cached(w.city, w.city_dir)
     traj = _traversal_cached(city, w, rig.fps)
     scene = RouteScene(city, traj, rig, render)
-    sensors, _ = make_sensors(cfg.get("sensor"), render, 1, ecfg.sensor_randomisation, w.seed)
+    sensors, _ = make_sensors(SensorConfig.from_dict(cfg.get("sensor")), render, 1, ecfg.sensor_randomisation, w.seed)
     warmup = ecfg.warmup_frames
     params = _controller_params(cfg, job.controller)
     if job.controller == "oracle":

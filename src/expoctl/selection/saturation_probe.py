@@ -134,12 +134,14 @@ class SaturationProbe:
     """The probe's scene and reference levels, built once and run for any number of controllers."""
 
     def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor_cfg: dict | None, agae: Controller):
+        from expoctl.camera.sensor import SensorConfig
         from expoctl.sim.closed_loop import RouteScene, make_sensors
 
         self.cfg = pcfg
         self.trajectory = city.traversal(pcfg.traversal, None, rig.fps, pcfg.seed)
         self.scene = RouteScene(city, self.trajectory, rig, render.with_size(pcfg.width, pcfg.height))
-        self.sensor = make_sensors(sensor_cfg, render.with_size(pcfg.width, pcfg.height), 1, 0.0, pcfg.seed)[0][0]
+        self.sensor = make_sensors(SensorConfig.from_dict(sensor_cfg), render.with_size(pcfg.width, pcfg.height), 1, 0.0,
+                                   pcfg.seed)[0][0]
         self.starts = {}
         for name, frame in start_frames(self.trajectory, pcfg.frames).items():
             evs, _ = self._drive(agae, AGAE_START, frame)

@@ -56,6 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import yaml
 
+    from expoctl.camera.sensor import SensorConfig
     from expoctl.controllers.registry import make_controller
     from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop
     from expoctl.world import load_city
@@ -89,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     if args.start >= n_total:
         raise InputError(f"--start {args.start} is past the route's last frame ({n_total - 1})")
     controller = make_controller(args.controller, (cfg.get("controllers") or {}).get(args.controller))
-    sensors, _ = make_sensors(cfg.get("sensor"), render, 1, 0.0, args.seed)
+    sensors, _ = make_sensors(SensorConfig.from_dict(cfg.get("sensor")), render, 1, 0.0, args.seed)
     kinds = _frame_kinds(traj.sections, n_total)
     loop = run_closed_loop(RouteScene(city, traj, rig, render), sensors, controller,
                            Settings(args.initial_gain_db, args.initial_exposure_us), range(0, n_total), args.seed)
