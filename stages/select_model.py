@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from expoctl.errors import InputError
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.saturation_probe import summary_line
 from expoctl.selection.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
 from stages.common import LAST_ITERATION, PROJECT_ROOT, stage_main
@@ -50,6 +51,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
 
     root = Path(project_root or PROJECT_ROOT)
     scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigError before any work
+    inputs = EvaluationInputs.from_resolved(cfg)
     cands = candidates(cfg, root)
     for c in cands:
         for p in (c.path, c.path.with_suffix(".onnx")):
@@ -59,7 +61,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     pool = cands
     if scfg.probe.enabled and len(cands) > 1:
         t0 = time.perf_counter()
-        results = probe_candidates(cfg, cands, root, scfg.probe)
+        results = probe_candidates(inputs, cands, root, scfg.probe)
         pool = probe_filter(cands, results)
         failed = [c.name for c in cands if not results[c.name]["passes"]]
         probe = {"config": dataclasses.asdict(scfg.probe), "results": results, "failed": failed,
@@ -70,7 +72,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         for c in cands:
             log.info("probe %s", summary_line(c.name, results[c.name]))
     if scfg.enabled:
-        result = select_model(cfg, pool, root, progress=sys.stderr.isatty())
+        result = select_model(inputs, scfg, pool, root, progress=sys.stderr.isatty())
         chosen, scores, reference, seconds = result.chosen, result.scores, result.reference, result.seconds
         windows = [{"sequence": w.sequence, "label": w.label, "start": w.start, "stop": w.stop}
                    for w in result.windows]

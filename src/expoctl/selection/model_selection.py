@@ -24,7 +24,8 @@ With `enabled: true` the remaining candidates then drive the selection windows; 
    with the two front ends weighted equally whatever their scales;
 3. on an exact tie, the later iteration (the paper's choice).
 
-Config: `select_model` (conf/select_model/default.yaml), validated by `SelectConfig.from_dict` before any work.
+Config: `select_model` (conf/select_model/default.yaml) as a `SelectConfig`, and the evaluation's `EvaluationInputs`,
+both built once by the stage before any work.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ import pandas as pd
 
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
+from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, SplitPlan, split_plan_from_dict
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.saturation_probe import ProbeConfig
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
@@ -164,19 +166,18 @@ def choose(candidates: Sequence[Candidate], scored: Sequence[dict]) -> Candidate
 # ---------------------------------------------------------------------------------------------------------- probe
 
 
-def probe_candidates(cfg: dict, candidates: Sequence[Candidate], project_root: str | os.PathLike = ".",
-                     pcfg: ProbeConfig | None = None) -> dict[str, dict]:
+def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], project_root: str | os.PathLike,
+                     pcfg: ProbeConfig) -> dict[str, dict]:
     """The saturation probe's result for each candidate (`SaturationProbe.run`), each network built as evaluate
     builds it (controllers.learned's keys with the candidate's checkpoint)."""
     from expoctl.controllers.registry import make_controller
     from expoctl.selection.saturation_probe import make_probe, probe_all
 
-    pcfg = pcfg or SelectConfig.from_dict(cfg.get("select_model")).probe
     for c in candidates:
         if not Path(c.path).is_file():
             raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
-    section = dict((cfg.get("controllers") or {}).get("learned") or {})
-    probe = make_probe(pcfg, cfg, project_root)
+    section = inputs.controller_params("learned")
+    probe = make_probe(pcfg, inputs, project_root)
     return probe_all(probe, {c.name: (lambda p=c.path: make_controller("learned", {**section, "checkpoint": str(p)}))
                              for c in candidates})
 
@@ -190,19 +191,15 @@ def probe_filter(candidates: Sequence[Candidate], results: dict[str, dict]) -> l
 # ---------------------------------------------------------------------------------------------------------- driving
 
 
-def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str | os.PathLike = ".",
-                 progress: bool = False) -> SelectionResult:
+def select_model(inputs: EvaluationInputs, scfg: SelectConfig, candidates: Sequence[Candidate],
+                 project_root: str | os.PathLike = ".", progress: bool = False) -> SelectionResult:
     """Drive every candidate (and the reference) over the selection windows; score; choose (no files written).
 
     One candidate alone is returned without driving anything (nothing to choose between)."""
     from expoctl.evaluation.runner import RunJob, city_windows, run_jobs, tune_sumlog_params
     from expoctl.evaluation.aggregate import add_section_ids, section_stats
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
-    scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigErrors before any work
-    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    RenderConfig.from_world(cfg.get("world"))
+    ecfg, rig = inputs.evaluate, inputs.rig
     if not candidates:
         raise InputError("model selection: no candidate network")
     names = [c.name for c in candidates]
@@ -223,12 +220,12 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
         if mine & theirs:
             raise ConfigError("select_model.first_traversal", f"traversals {sorted(mine & theirs)} of the "
                               f"{scfg.city} city are also evaluate.splits.{scfg.city}'s: choose disjoint ones")
-    windows = city_windows(cfg, project_root, SELECT_LABEL, scfg.city, scfg.plan, "select_model", rig.fps,
+    windows = city_windows(inputs, project_root, SELECT_LABEL, scfg.city, scfg.plan, "select_model", rig.fps,
                            ecfg.warmup_frames)
-    sumlog = tune_sumlog_params(cfg, project_root, ecfg.sumlog_pairs)
-    jobs = [RunJob(w, "learned", cfg, sumlog, str(c.path), label=c.name) for c in candidates for w in windows]
+    sumlog = tune_sumlog_params(inputs, project_root, ecfg.sumlog_pairs)
+    jobs = [RunJob(w, "learned", inputs, sumlog, str(c.path), label=c.name) for c in candidates for w in windows]
     if scfg.reference is not None:
-        jobs += [RunJob(w, scfg.reference, cfg, sumlog, label=scfg.reference) for w in windows]
+        jobs += [RunJob(w, scfg.reference, inputs, sumlog, label=scfg.reference) for w in windows]
     rows, summaries = [], []
     for job, (r, s, _thumbs) in run_jobs(jobs, ecfg.n_jobs, progress):
         rows.extend({**row, "candidate": job.label} for row in r)  # run_id is already job.run_id (named by label)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,10 @@ from expoctl.camera.response import SATURATED_DN  # grey level counted as clippe
 from expoctl.controllers.agae import split_exposure_first
 from expoctl.controllers.base import Controller, Settings
 from expoctl.errors import ConfigError, InputError
+
+if TYPE_CHECKING:
+    from expoctl.camera.sensor import SensorConfig
+    from expoctl.evaluation.inputs import EvaluationInputs
 
 AGAE_START = Settings(0.0, 5000.0)  # AG+AE's own start before it settles to the reference level
 
@@ -133,15 +138,13 @@ def _ev(s: Settings) -> float:
 class SaturationProbe:
     """The probe's scene and reference levels, built once and run for any number of controllers."""
 
-    def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor_cfg: dict | None, agae: Controller):
-        from expoctl.camera.sensor import SensorConfig
+    def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor: "SensorConfig", agae: Controller):
         from expoctl.sim.closed_loop import RouteScene, make_sensors
 
         self.cfg = pcfg
         self.trajectory = city.traversal(pcfg.traversal, None, rig.fps, pcfg.seed)
         self.scene = RouteScene(city, self.trajectory, rig, render.with_size(pcfg.width, pcfg.height))
-        self.sensor = make_sensors(SensorConfig.from_dict(sensor_cfg), render.with_size(pcfg.width, pcfg.height), 1, 0.0,
-                                   pcfg.seed)[0][0]
+        self.sensor = make_sensors(sensor, render.with_size(pcfg.width, pcfg.height), 1, 0.0, pcfg.seed)[0][0]
         self.starts = {}
         for name, frame in start_frames(self.trajectory, pcfg.frames).items():
             evs, _ = self._drive(agae, AGAE_START, frame)
@@ -182,23 +185,20 @@ class SaturationProbe:
         return out
 
 
-def make_probe(pcfg: ProbeConfig, cfg: Mapping, project_root) -> SaturationProbe:
-    """The probe for a resolved project config (world, rig, sensor, controllers.agae) and its city."""
+def make_probe(pcfg: ProbeConfig, inputs: "EvaluationInputs", project_root) -> SaturationProbe:
+    """The probe for the typed config the stage built (world, rig, sensor, controllers.agae) and its city."""
     from pathlib import Path
 
     from expoctl.controllers.registry import make_controller
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig
     from expoctl.world import load_city
 
-    world = cfg.get("world") or {}
-    cities = world.get("cities") or {}
-    if pcfg.city not in cities:
-        raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(cities)})")
-    city = load_city(cities[pcfg.city], str(Path(project_root) / world.get("city_dir", "conf/world/cities")))
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    render = RenderConfig.from_world(world)
-    agae = make_controller("agae", (cfg.get("controllers") or {}).get("agae", {}))
-    return SaturationProbe(pcfg, city, rig, render, cfg.get("sensor"), agae)
+    world = inputs.world
+    if pcfg.city not in world.cities:
+        raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(world.cities)})")
+    city_dir = world.city_dir if world.city_dir is not None else "conf/world/cities"
+    city = load_city(world.cities[pcfg.city], str(Path(project_root) / city_dir))
+    agae = make_controller("agae", inputs.controller_params("agae"))
+    return SaturationProbe(pcfg, city, inputs.rig, world.render, inputs.sensor, agae)
 
 
 def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Controller]]) -> dict[str, dict]:
