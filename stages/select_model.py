@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+from expoctl.config_reader import Problems
 from expoctl.errors import InputError
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.saturation_probe import summary_line
@@ -50,8 +51,10 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     from expoctl.io import atomic_path, write_json
 
     root = Path(project_root or PROJECT_ROOT)
-    scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigError before any work
-    inputs = EvaluationInputs.from_resolved(cfg)
+    problems = Problems()  # every config problem at once, before any work
+    scfg = SelectConfig.from_dict(cfg.get("select_model"), "select_model", problems)
+    inputs = EvaluationInputs.from_resolved(cfg, problems)
+    problems.raise_if_any()
     cands = candidates(cfg, root)
     for c in cands:
         for p in (c.path, c.path.with_suffix(".onnx")):

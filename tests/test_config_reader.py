@@ -127,3 +127,17 @@ def test_groups_share_one_problem_list():
     assert len(problems) == 2
     assert _problems(problems.raise_if_any) == [("rig.fps", "must be a number > 0, got 0"),
                                                 ("world.render.hfov_deg", "must be a number in (0, 180), got 200")]
+
+
+@pytest.mark.parametrize("v, ok", [([0, 30], True), ((1.0, 1.0), True), ([6, 1], False), ([0, 31], False),
+                                   ([-1, 2], False), (3, False), ([1, 2, 3], False), ([True, 2], False)])
+def test_pair_is_ordered_and_bounded(v, ok):
+    r = Section({"zero_gain_add_db": v}, "rig.perturbation")
+    got = r.pair("zero_gain_add_db", (1.0, 6.0), min=0.0, max=30.0, unit="dB")
+    if ok:
+        assert got == (float(v[0]), float(v[1])) and all(isinstance(x, float) for x in got)
+        r.done()
+    else:
+        assert got == (1.0, 6.0)
+        assert _problems(r.done) == [("rig.perturbation.zero_gain_add_db",
+                                      f"must be [low, high] with low <= high, each a number in [0.0, 30.0] dB, got {v!r}")]

@@ -175,8 +175,31 @@ class Section:
         if not given:
             return None if default is REQUIRED else default
         if isinstance(v, (list, dict)) or v not in choices:
-            return self._bad(name, f"one of {', '.join(map(str, choices))}", v, default)
+            names = ", ".join("null" if c is None else str(c) for c in choices)
+            return self._bad(name, f"one of {names}", v, default)
         return v
+
+    def pair(self, name: str, default: Any = REQUIRED, *, min: Real | None = None, max: Real | None = None,
+             above: Real | None = None, below: Real | None = None, unit: str = "") -> Any:
+        """[low, high]: two numbers with low <= high, each within the bounds; returned as a tuple of floats."""
+        given, v = self._get(name, default)
+        if not given:
+            return None if default is REQUIRED else default
+        if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(is_number(x) and within(x, min, max, above, below)
+                                                                    for x in v) and v[0] <= v[1]):
+            bounds = bounds_text(min, max, above, below)
+            each = f", each a number {bounds}" + (f" {unit}" if unit else "") if bounds else ""
+            return self._bad(name, f"[low, high] with low <= high{each}", v, default)
+        return float(v[0]), float(v[1])
+
+    def numbers(self, name: str, default: Any = REQUIRED) -> Any:
+        """A non-empty list of finite numbers, returned as a tuple of floats."""
+        given, v = self._get(name, default)
+        if not given:
+            return None if default is REQUIRED else default
+        if isinstance(v, str) or not isinstance(v, (list, tuple)) or not v or not all(is_number(x) for x in v):
+            return self._bad(name, "a non-empty list of finite numbers", v, default)
+        return tuple(float(x) for x in v)
 
     def section(self, name: str, *, required: bool = False) -> "Section":
         """The sub-block `name` (a mapping), sharing this section's problems; absent reads as empty unless

@@ -34,9 +34,11 @@ class EvaluationInputs:
     model_path: str  # controllers.learned.checkpoint, else paths.model (relative: to the project root)
 
     @classmethod
-    def from_resolved(cls, cfg: dict[str, Any]) -> "EvaluationInputs":
-        """Build from the resolved config; every problem of the groups read here is reported at once."""
-        problems = Problems()
+    def from_resolved(cls, cfg: dict[str, Any], problems: Problems | None = None) -> "EvaluationInputs":
+        """Build from the resolved config; every problem of the groups read here is reported at once (with
+        `problems`, added to them for the caller to raise with its own)."""
+        owner = problems is None
+        problems = problems if problems is not None else Problems()
         top = Section(cfg, "", problems)
         evaluate = EvaluateConfig.from_dict(top.value("evaluate", None), "evaluate", problems)
         features = FeaturesConfig.from_dict(top.value("features", None))
@@ -53,7 +55,8 @@ class EvaluationInputs:
         paths = top.section("paths")
         frames_path = paths.text("frames", "")
         model_path = (controllers.get("learned") or {}).get("checkpoint") or paths.text("model", "")
-        problems.raise_if_any()
+        if owner:
+            problems.raise_if_any()
         return cls(evaluate, features, seed, world, rig, sensor, controllers, frames_path, str(model_path))
 
     @property

@@ -42,7 +42,8 @@ import pandas as pd
 
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, SplitPlan, split_plan_from_dict
+from expoctl.config_reader import Problems, Section
+from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, SplitPlan, read_split_plan
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.saturation_probe import ProbeConfig
 
@@ -52,9 +53,6 @@ SELECT_LABEL = "select"
 REFERENCES = tuple(c for c in CONTROLLER_NAMES if c not in ("learned", "oracle"))
 #: the one city no stage before evaluate may see (the validation city already gives train its validation split)
 HELD_OUT_CITY = "test"
-
-_PLAN_KEYS = {"first_traversal", "n_traversals", "window", "before_s", "after_s", "windows"}
-_KEYS = _PLAN_KEYS | {"enabled", "city", "reference", "probe"}
 
 
 @dataclass(frozen=True)
@@ -66,30 +64,21 @@ class SelectConfig:
     probe: ProbeConfig = ProbeConfig()
 
     @classmethod
-    def from_dict(cls, d, key: str = "select_model") -> "SelectConfig":
-        if not isinstance(d, dict):
-            raise ConfigError(key, f"missing or not a mapping (got {d!r})")
-        for k in d:
-            if k not in _KEYS:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(_KEYS)})")
-        enabled = d.get("enabled", False)
-        if not isinstance(enabled, bool):
-            raise ConfigError(f"{key}.enabled", f"must be true or false, got {enabled!r}")
-        city = d.get("city", "train")
-        if not isinstance(city, str) or not city:
-            raise ConfigError(f"{key}.city", f"must name a world.cities entry, got {city!r}")
+    def from_dict(cls, d, key: str = "select_model", problems: Problems | None = None) -> "SelectConfig":
+        r = Section(d, key, problems, required=True)
+        enabled = r.boolean("enabled", cls.enabled)
+        city = r.text("city", cls.city)  # a world.cities entry
         if city == HELD_OUT_CITY:
-            raise ConfigError(f"{key}.city", f"{city!r} is the held-out city: selecting on it would let the choice see "
-                              "the city the result is reported on (use train or validation)")
-        reference = d.get("reference", "agae")
-        if reference is not None and reference not in REFERENCES:
-            raise ConfigError(f"{key}.reference", f"must be null or one of {list(REFERENCES)}, got {reference!r}")
-        plan = split_plan_from_dict(SELECT_LABEL, {k: v for k, v in d.items() if k in _PLAN_KEYS}, key)
-        if "first_traversal" not in d:
-            plan = dataclasses.replace(plan, first_traversal=300)
-        probe = ProbeConfig.from_dict(d.get("probe"), f"{key}.probe")
+            r.problem("city", f"{city!r} is the held-out city: selecting on it would let the choice see the city the "
+                      "result is reported on (use train or validation)")
+        reference = r.choice("reference", (None,) + REFERENCES, cls.reference)
+        plan = read_split_plan(SELECT_LABEL, r)
+        if not r.has("first_traversal"):
+            plan = dataclasses.replace(plan, first_traversal=cls.plan.first_traversal)
+        probe = ProbeConfig.from_dict(r.value("probe", None), r.path("probe"), r.problems)
         if probe.city == HELD_OUT_CITY:
-            raise ConfigError(f"{key}.probe.city", f"{probe.city!r} is the held-out city (use train or validation)")
+            r.problem("probe.city", f"{probe.city!r} is the held-out city (use train or validation)")
+        r.done()
         return cls(enabled, city, plan, reference, probe)
 
 

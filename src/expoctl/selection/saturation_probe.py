@@ -30,6 +30,7 @@ from expoctl.camera.ranges import exposure_value_ev
 from expoctl.camera.response import SATURATED_DN  # grey level counted as clipped (as evaluate's saturated_frac)
 from expoctl.controllers.agae import split_exposure_first
 from expoctl.controllers.base import Controller, Settings
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
@@ -56,38 +57,26 @@ class ProbeConfig:
     first_frames: int = 10
 
     @classmethod
-    def from_dict(cls, d, key: str) -> "ProbeConfig":
-        if d is None:
-            d = {}
-        if not isinstance(d, dict):
-            raise ConfigError(key, f"must be a mapping, got {d!r}")
-        known = {f for f in cls.__dataclass_fields__}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
-        v = {**{f: getattr(cls, f) for f in known}, **d}
-        if not isinstance(v["enabled"], bool):
-            raise ConfigError(f"{key}.enabled", f"must be true or false, got {v['enabled']!r}")
-        if not isinstance(v["city"], str) or not v["city"]:
-            raise ConfigError(f"{key}.city", f"must name a world.cities entry, got {v['city']!r}")
-        for name, lo in (("traversal", 0), ("seed", 0), ("frames", 2), ("width", 16), ("height", 16),
-                         ("last_frames", 1), ("first_frames", 1)):
-            x = v[name]
-            if isinstance(x, bool) or not isinstance(x, int) or x < lo:
-                raise ConfigError(f"{key}.{name}", f"must be an integer >= {lo}, got {x!r}")
-        for name in ("last_frames", "first_frames"):
-            if v[name] >= v["frames"]:
-                raise ConfigError(f"{key}.{name}", f"must be below frames ({v['frames']}), got {v[name]}")
-        offs = v["offsets_ev"]
-        if (not isinstance(offs, (list, tuple)) or not offs or not all(
-                isinstance(o, (int, float)) and not isinstance(o, bool) and math.isfinite(o) for o in offs)):
-            raise ConfigError(f"{key}.offsets_ev", f"must be a non-empty list of finite EV offsets, got {offs!r}")
-        m = v["max_saturated_fraction"]
-        if isinstance(m, bool) or not isinstance(m, (int, float)) or not 0 < m <= 1:
-            raise ConfigError(f"{key}.max_saturated_fraction", f"must be in (0, 1], got {m!r}")
-        return cls(v["enabled"], v["city"], v["traversal"], v["seed"], v["frames"],
-                   tuple(float(o) for o in offs), v["width"], v["height"], float(m), v["last_frames"],
-                   v["first_frames"])
+    def from_dict(cls, d, key: str, problems: Problems | None = None) -> "ProbeConfig":
+        r = Section(d, key, problems)
+        frames = r.integer("frames", cls.frames, min=2)
+        # the reference level is the mean over the last frames of a start, the verdict over its first ones
+        ends = {name: r.integer(name, getattr(cls, name), min=1, below=frames) for name in ("last_frames",
+                                                                                             "first_frames")}
+        cfg = cls(
+            enabled=r.boolean("enabled", cls.enabled),
+            city=r.text("city", cls.city),  # a world.cities entry (make_probe checks it)
+            traversal=r.integer("traversal", cls.traversal, min=0),
+            seed=r.integer("seed", cls.seed, min=0),
+            frames=frames,
+            offsets_ev=r.numbers("offsets_ev", cls.offsets_ev),
+            width=r.integer("width", cls.width, min=16),
+            height=r.integer("height", cls.height, min=16),
+            max_saturated_fraction=r.number("max_saturated_fraction", cls.max_saturated_fraction, above=0.0, max=1.0),
+            **ends,
+        )
+        r.done()
+        return cfg
 
 
 def _longest_run(mask: np.ndarray) -> tuple[int, int]:

@@ -229,9 +229,9 @@ class RigConfig:
     def from_dict(cls, d: Any, key: str = "rig", problems: Problems | None = None) -> "RigConfig":
         r = Section(d, key, problems)
         baseline, fps = r.number("baseline_m", cls.baseline_m, above=0), r.number("fps", cls.fps, above=0)
-        perturbation = r.value("perturbation", None)
+        perturbation = PerturbationConfig.from_dict(r.value("perturbation", None), r.path("perturbation"), r.problems)
         r.done()
-        return cls(baseline, fps, PerturbationConfig.from_dict(perturbation, f"{key}.perturbation"))
+        return cls(baseline, fps, perturbation)
 
 
 def rig_metadata(rig: RigConfig, render: RenderConfig) -> dict:
