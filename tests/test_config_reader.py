@@ -141,3 +141,30 @@ def test_pair_is_ordered_and_bounded(v, ok):
         assert got == (1.0, 6.0)
         assert _problems(r.done) == [("rig.perturbation.zero_gain_add_db",
                                       f"must be [low, high] with low <= high, each a number in [0.0, 30.0] dB, got {v!r}")]
+
+
+def test_names_reports_each_unknown_and_repeated_name():
+    r = Section({"controllers": ["agae", "nope", "agae"]}, "evaluate")
+    assert r.names("controllers", ("agae", "shin"), ("agae",), what="controller") == ("agae",)
+    assert _problems(r.done) == [
+        ("evaluate.controllers", "lists a controller twice: ['agae', 'nope', 'agae']"),
+        ("evaluate.controllers", "unknown controller 'nope' (known: agae, shin)"),
+    ]
+    r = Section({"frontends": "orb"}, "features")
+    r.names("frontends", ("orb", "viso"), what="front end")
+    assert _problems(r.done) == [("features.frontends", "must be a non-empty list of front ends (orb, viso), got 'orb'")]
+
+
+def test_collect_adds_a_config_errors_problems():
+    problems = Problems()
+
+    def legacy(v):
+        if v < 0:
+            raise ConfigError("sensor.full_well_e", f"must be > 0, got {v}")
+        return v
+
+    assert problems.collect(legacy, 3) == 3 and len(problems) == 0
+    assert problems.collect(legacy, -5) is None
+    problems.add("rig.fps", "must be a number > 0, got 0")
+    assert _problems(problems.raise_if_any) == [("sensor.full_well_e", "must be > 0, got -5"),
+                                                ("rig.fps", "must be a number > 0, got 0")]

@@ -17,7 +17,7 @@ Bounds are named: `min`/`max` are inclusive, `above`/`below` exclusive; the mess
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from numbers import Real
 from typing import Any
 
@@ -38,6 +38,15 @@ class Problems:
 
     def __len__(self) -> int:
         return len(self.items)
+
+    def collect(self, build: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """`build(*args, **kwargs)`, with the problems of a ConfigError it raises added here instead (None then): for
+        a group whose reader stops at its first problem, so it still reports alongside the others."""
+        try:
+            return build(*args, **kwargs)
+        except ConfigError as exc:
+            self.items.extend(exc.problems)
+            return None
 
     def raise_if_any(self) -> None:
         if self.items:
@@ -191,6 +200,23 @@ class Section:
             each = f", each a number {bounds}" + (f" {unit}" if unit else "") if bounds else ""
             return self._bad(name, f"[low, high] with low <= high{each}", v, default)
         return float(v[0]), float(v[1])
+
+    def names(self, name: str, known: Sequence[str], default: Any = REQUIRED, *, what: str = "name") -> Any:
+        """A non-empty list of distinct names from `known`, returned as a tuple."""
+        given, v = self._get(name, default)
+        if not given:
+            return None if default is REQUIRED else default
+        if isinstance(v, str) or not isinstance(v, (list, tuple)) or not v:
+            return self._bad(name, f"a non-empty list of {what}s ({', '.join(known)})", v, default)
+        bad = False
+        if len(set(v)) != len(v):
+            self.problem(name, f"lists a {what} twice: {v!r}")
+            bad = True
+        for n in v:
+            if n not in known:
+                self.problem(name, f"unknown {what} {n!r} (known: {', '.join(known)})")
+                bad = True
+        return (None if default is REQUIRED else default) if bad else tuple(v)
 
     def numbers(self, name: str, default: Any = REQUIRED) -> Any:
         """A non-empty list of finite numbers, returned as a tuple of floats."""

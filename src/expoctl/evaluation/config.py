@@ -63,7 +63,7 @@ class EvaluateConfig:
     @classmethod
     def from_dict(cls, d: Any, key: str = "evaluate", problems: Problems | None = None) -> "EvaluateConfig":
         r = Section(d, key, problems, required=True)
-        controllers = _names(r, "controllers", CONTROLLER_NAMES, "controller")
+        controllers = r.names("controllers", CONTROLLER_NAMES, CONTROLLER_NAMES, what="controller")
         splits = r.section("splits", required=True)
         if not splits.mapping:
             splits.problem(None, f"must map route split (validation, test) → plan, got {splits.mapping!r}")
@@ -111,20 +111,6 @@ class EvaluateConfig:
         )
         r.done()
         return cfg
-
-
-def _names(r: Section, name: str, known: tuple[str, ...], what: str) -> tuple[str, ...]:
-    """A non-empty list of distinct names from `known` (default: all of them)."""
-    names = r.value(name, list(known))
-    if isinstance(names, str) or not isinstance(names, (list, tuple)) or not names:
-        r.problem(name, f"must be a non-empty list of {what} names, got {names!r}")
-        return known
-    if len(set(names)) != len(names):
-        r.problem(name, f"lists a {what} twice: {names!r}")
-    for n in names:
-        if n not in known:
-            r.problem(name, f"unknown {what} {n!r} (known: {', '.join(known)})")
-    return tuple(names)
 
 
 def read_vo_map(r: Section, n_features: int) -> MapTrackerConfig:

@@ -41,11 +41,11 @@ class EvaluationInputs:
         problems = problems if problems is not None else Problems()
         top = Section(cfg, "", problems)
         evaluate = EvaluateConfig.from_dict(top.value("evaluate", None), "evaluate", problems)
-        features = FeaturesConfig.from_dict(top.value("features", None))
+        features = FeaturesConfig.from_dict(top.value("features", None), problems)
         seed = read_seed(top)
         world = WorldConfig.from_dict(top.value("world", None), "world", problems)
         rig = RigConfig.from_dict(top.value("rig", None), "rig", problems)
-        sensor = SensorConfig.from_dict(top.value("sensor", None) or {})
+        sensor = problems.collect(SensorConfig.from_dict, top.value("sensor", None) or {}) or SensorConfig()
         controllers = {}
         sections = top.section("controllers")
         for name, params in sections.mapping.items():
