@@ -218,13 +218,18 @@ class Section:
                 bad = True
         return (None if default is REQUIRED else default) if bad else tuple(v)
 
-    def numbers(self, name: str, default: Any = REQUIRED) -> Any:
-        """A non-empty list of finite numbers, returned as a tuple of floats."""
+    def numbers(self, name: str, default: Any = REQUIRED, *, min: Real | None = None, max: Real | None = None,
+                above: Real | None = None, below: Real | None = None, unit: str = "", empty: bool = False) -> Any:
+        """A list of finite numbers within the bounds (non-empty unless `empty`), returned as a tuple of floats."""
         given, v = self._get(name, default)
         if not given:
             return None if default is REQUIRED else default
-        if isinstance(v, str) or not isinstance(v, (list, tuple)) or not v or not all(is_number(x) for x in v):
-            return self._bad(name, "a non-empty list of finite numbers", v, default)
+        if (isinstance(v, str) or not isinstance(v, (list, tuple)) or (not v and not empty)
+                or not all(is_number(x) and within(x, min, max, above, below) for x in v)):
+            bounds = bounds_text(min, max, above, below)
+            kind = ("a list" if empty else "a non-empty list") + (" of numbers " + bounds if bounds else
+                                                                  " of finite numbers")
+            return self._bad(name, kind + (f" {unit}" if unit and bounds else ""), v, default)
         return tuple(float(x) for x in v)
 
     def section(self, name: str, *, required: bool = False) -> "Section":
