@@ -63,7 +63,7 @@ class FeaturesConfig:
             r.problem("n_jobs", f"must be a positive integer or -1 (all cores), got {n_jobs!r}")
             n_jobs = 1
         seed = r.integer("seed", 0)
-        sumlog = r.problems.collect(SumLogGrid.from_dict, r.value("sumlog", None)) or SumLogGrid()
+        sumlog = SumLogGrid.from_dict(r.value("sumlog", None), r.problems)
         r.done()
         return cls(frontends, blocks["orb"], blocks["viso"], n_jobs, seed, sumlog)
 
