@@ -143,11 +143,3 @@ def read_split_plan(name: str, r: Section) -> SplitPlan:
         after_s=r.number("after_s", SplitPlan.after_s, min=0.0, max=600.0),
         windows=windows,
     )
-
-
-def split_plan_from_dict(name: str, d: Any, key: str) -> SplitPlan:
-    """A window plan from its mapping at config key `key`."""
-    r = Section(d, key, required=True)
-    plan = read_split_plan(name, r)
-    r.done()
-    return plan
