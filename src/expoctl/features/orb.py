@@ -20,7 +20,7 @@ import cv2
 import numba
 import numpy as np
 
-from expoctl.config_reader import Section
+from expoctl.config_reader import Section, is_integer
 from expoctl.features.verify import VerifyParams, count_fundamental_inliers
 
 
@@ -45,7 +45,7 @@ class OrbParams:
         r = Section(d, key)
         ws = r.value("working_size", cls.working_size)
         if ws is not None:
-            if not (isinstance(ws, (list, tuple)) and len(ws) == 2 and all(_is_int(v) and v >= 32 for v in ws)):
+            if not (isinstance(ws, (list, tuple)) and len(ws) == 2 and all(is_integer(v) and v >= 32 for v in ws)):
                 r.problem("working_size", f"must be [width, height] with both >= 32, or null; got {ws!r}")
                 ws = cls.working_size
             ws = (int(ws[0]), int(ws[1]))
@@ -72,10 +72,6 @@ class OrbParams:
             max_iters=int(self.ransac_max_iters),
             method=self.ransac_method,
         )
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
 @dataclass(frozen=True)
