@@ -13,7 +13,7 @@ from expoctl.config_reader import Problems, Section
 from expoctl.evaluation.config import EvaluateConfig
 from expoctl.features.pipeline import FeaturesConfig
 from expoctl.sim.closed_loop import RigConfig
-from expoctl.sim.collect import read_seed
+from expoctl.sim.collect import controller_params, read_seed
 from expoctl.world.city import WorldConfig
 from expoctl.world.render_config import RenderConfig
 
@@ -46,12 +46,8 @@ class EvaluationInputs:
         world = WorldConfig.from_dict(top.value("world", None), "world", problems)
         rig = RigConfig.from_dict(top.value("rig", None), "rig", problems)
         sensor = problems.collect(SensorConfig.from_dict, top.value("sensor", None) or {}) or SensorConfig()
-        controllers = {}
         sections = top.section("controllers")
-        for name, params in sections.mapping.items():
-            if params is not None and not isinstance(params, dict):
-                sections.problem(name, f"must be a mapping, got {params!r}")
-            controllers[name] = dict(params or {})
+        controllers = {name: controller_params(sections, name) for name in sections.mapping}
         paths = top.section("paths")
         frames_path = paths.text("frames", "")
         model_path = (controllers.get("learned") or {}).get("checkpoint") or paths.text("model", "")
