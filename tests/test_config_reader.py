@@ -2,7 +2,7 @@
 
 import pytest
 
-from expoctl.config_reader import REQUIRED, Problems, Section, bounds_text
+from expoctl.config_reader import REQUIRED, Problems, Section, bounds_text, read_seed
 from expoctl.errors import ConfigError, InputError
 
 
@@ -168,3 +168,15 @@ def test_collect_adds_a_config_errors_problems():
     problems.add("rig.fps", "must be a number > 0, got 0")
     assert _problems(problems.raise_if_any) == [("sensor.full_well_e", "must be > 0, got -5"),
                                                 ("rig.fps", "must be a number > 0, got 0")]
+
+
+@pytest.mark.parametrize("cfg, seed, problem", [({}, 0, None), ({"seed": 7}, 7, None),
+                                                ({"seed": -1}, 0, "must be an integer >= 0, got -1"),
+                                                ({"seed": True}, 0, "must be an integer >= 0, got True")])
+def test_seed_is_one_top_level_key(cfg, seed, problem):
+    top = Section(cfg, "")
+    assert read_seed(top) == seed
+    if problem is None:
+        top.problems.raise_if_any()
+    else:
+        assert _problems(top.problems.raise_if_any) == [("seed", problem)]

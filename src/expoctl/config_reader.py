@@ -256,3 +256,9 @@ class Section:
 def _described(kind: str, bounds: str, unit: str, nullable: bool) -> str:
     text = kind + (f" {bounds}" if bounds else "") + (f" {unit}" if unit and bounds else "")
     return text + (" or null" if nullable else "")
+
+
+def read_seed(top: Section) -> int:
+    """The run's base seed: key `seed` at the resolved config's top level (`Section(cfg, "")`), default 0. Every
+    stage that seeds anything (collect, train, evaluate, select_model) reads it here."""
+    return top.integer("seed", 0, min=0)

@@ -9,11 +9,11 @@ from pathlib import Path
 from typing import Any
 
 from expoctl.camera.sensor import SensorConfig
-from expoctl.config_reader import Problems, Section
+from expoctl.config_reader import Problems, Section, read_seed
 from expoctl.evaluation.config import EvaluateConfig
 from expoctl.features.pipeline import FeaturesConfig
 from expoctl.sim.closed_loop import RigConfig
-from expoctl.sim.collect import controller_params, read_seed
+from expoctl.sim.collect import controller_params
 from expoctl.world.city import WorldConfig
 from expoctl.world.render_config import RenderConfig
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.camera.sensor import SensorConfig
-from expoctl.config_reader import Problems, Section
+from expoctl.config_reader import Problems, Section, read_seed
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
 from expoctl.host import single_threaded_children
@@ -259,11 +259,6 @@ def _splits(r: Section) -> dict[str, SplitConfig]:
         sr.done()
     r.done()
     return out
-
-
-def read_seed(top: Section) -> int:
-    """The run's base seed, config key `seed` of the resolved config's top level (default 0)."""
-    return top.integer("seed", 0, min=0)
 
 
 def controller_params(controllers: Section, name: str) -> dict:
