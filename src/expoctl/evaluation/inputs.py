@@ -45,7 +45,7 @@ class EvaluationInputs:
         seed = read_seed(top)
         world = WorldConfig.from_dict(top.value("world", None), "world", problems)
         rig = RigConfig.from_dict(top.value("rig", None), "rig", problems)
-        sensor = problems.collect(SensorConfig.from_dict, top.value("sensor", None) or {}) or SensorConfig()
+        sensor = SensorConfig.from_dict(top.value("sensor", None), "sensor", problems)
         sections = top.section("controllers")
         controllers = {name: controller_params(sections, name) for name in sections.mapping}
         paths = top.section("paths")

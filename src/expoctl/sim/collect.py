@@ -102,7 +102,7 @@ class CollectInputs:
         ccfg = CollectConfig.from_dict(top.value("collect", None), "collect", problems)
         inputs = cls(ccfg, read_seed(top), WorldConfig.from_dict(top.value("world", None), "world", problems),
                      RigConfig.from_dict(top.value("rig", None), "rig", problems),
-                     problems.collect(SensorConfig.from_dict, top.value("sensor", None) or {}) or SensorConfig(),
+                     SensorConfig.from_dict(top.value("sensor", None), "sensor", problems),
                      controller_params(top.section("controllers"), ccfg.reference_controller))
         problems.raise_if_any()
         return inputs

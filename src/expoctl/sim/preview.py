@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     problems = Problems()  # every config problem at once
     rig = RigConfig.from_dict(cfg.get("rig"), "rig", problems)
     world = WorldConfig.from_dict(cfg.get("world"), "world", problems)
-    sensor = problems.collect(SensorConfig.from_dict, cfg.get("sensor")) or SensorConfig()
+    sensor = SensorConfig.from_dict(cfg.get("sensor"), "sensor", problems)
     problems.raise_if_any()
     render = world.render
     if "render" not in (cfg.get("world") or {}):  # no config: a quick look at 320×240
