@@ -200,3 +200,14 @@ def test_every_config_problem_in_one_pass(city_dir):
         ("world.render.width", "must be an integer in [16, 8192] pixels, got 0"),
         ("rig.fps", "must be a number > 0, got 'fast'"),
     ]
+
+
+def test_inputs_are_built_once_and_picklable_for_the_workers(city_dir):
+    import pickle
+
+    inputs = CollectInputs.from_resolved(tiny(city_dir))
+    assert inputs.seed == 3 and inputs.reference_params == {"damping": 0.2}
+    assert (inputs.world.render.width, inputs.world.render.height, inputs.rig.fps) == (64, 48, 15.0)
+    assert pickle.loads(pickle.dumps(inputs)) == inputs
+    with pytest.raises(AttributeError):  # frozen: a worker cannot change what the stage built
+        inputs.seed = 4
