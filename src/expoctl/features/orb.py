@@ -14,7 +14,7 @@ geometry valid (a scaling is a projective map), so verifying at the working size
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import cv2
 import numba
