@@ -254,7 +254,9 @@ class RouteScene:
 
     def __init__(self, city, trajectory, rig: RigConfig, render: RenderConfig):
         self.trajectory = trajectory
-        self.renderer = render.make_renderer(city)
+        from expoctl.world.backends import make_renderer
+
+        self.renderer = make_renderer(city, render)
         self._offset_m = {1: 0.0, 2: rig.baseline_m}
 
     def luminance(self, frame_index: int, exposure_us: float, camera: int) -> np.ndarray:

@@ -88,8 +88,3 @@ class RenderConfig:
         out = asdict(self)
         del out["backend"]
         return out
-
-    def make_renderer(self, city, conditions=None):
-        from expoctl.world.backends import make_renderer
-
-        return make_renderer(city, self, conditions)
