@@ -39,6 +39,7 @@ from expoctl.controllers.agae import AgAeController  # noqa: E402
 from expoctl.controllers.base import Settings  # noqa: E402
 from expoctl.errors import ConfigError, InputError  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
+from expoctl.camera.sensor import SensorConfig  # noqa: E402
 from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
 from expoctl.world import load_world_city  # noqa: E402
 from stages.compose import compose_config  # noqa: E402
@@ -115,7 +116,7 @@ def simulate(cfg: dict, split: str, agae_params: dict, n_passes: int, width: int
     city = load_world_city(cfg["world"], split)
     rig = RigConfig.from_dict(cfg["rig"])
     render = RenderConfig.from_world(cfg["world"]).with_size(width, height)
-    sensors, _ = make_sensors(cfg["sensor"], render, 1, 0.0, seed=0)
+    sensors, _ = make_sensors(SensorConfig.from_dict(cfg["sensor"]), render, 1, 0.0, seed=0)
     out = []
     for traj, a, b, exit_k, entry_k in tunnel_passes(city, n_passes, rig.fps, before_s, after_s, warmup):
         scene = RouteScene(city, traj, rig, render)

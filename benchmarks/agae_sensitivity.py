@@ -33,6 +33,7 @@ sys.path[:0] = [str(ROOT / "src"), str(ROOT)]
 from agae_calibration import AUTHORS, EV_PER_DB, step_stats  # noqa: E402
 
 from expoctl.errors import ConfigError, InputError  # noqa: E402
+from expoctl.evaluation.inputs import EvaluationInputs  # noqa: E402
 from expoctl.evaluation.runner import evaluate  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
@@ -84,7 +85,7 @@ def main() -> int:
                                                          f"controllers.agae.max_darken_ev_per_frame={max_step}",
                                                          f"controllers.agae.max_brighten_ev_per_frame={max_step}"])
             t0 = time.time()
-            summary = variant_summary(evaluate(cfg, ROOT), vo_threshold)
+            summary = variant_summary(evaluate(EvaluationInputs.from_resolved(cfg), ROOT), vo_threshold)
             summary.update(damping=damping, max_step_ev=max_step, seconds=round(time.time() - t0, 1))
             variants[f"damping={damping} max_step_ev={max_step}"] = summary
             print(f"[agae_sensitivity] damping {damping}, max step {max_step} EV: {summary['seconds']:.0f} s",

@@ -24,6 +24,7 @@ def bench(width: int, height: int, n_frames: int) -> dict:
     from expoctl.controllers.registry import make_controller
     import yaml
 
+    from expoctl.camera.sensor import SensorConfig
     from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, sensor_rng
     from expoctl.sim.protocol import perturb
     from expoctl.world import load_city
@@ -39,7 +40,7 @@ def bench(width: int, height: int, n_frames: int) -> dict:
     atlas_s = time.perf_counter() - t0
     traj = city.traversal(1, n_frames + 1, rig.fps, 0)
     scene = RouteScene(city, traj, rig, render)
-    sensors, _ = make_sensors(sensor_cfg, render, 2, 0.15, 0)
+    sensors, _ = make_sensors(SensorConfig.from_dict(sensor_cfg), render, 2, 0.15, 0)
     controller = make_controller("agae", {})
     from expoctl.controllers.base import Settings
 

@@ -139,6 +139,7 @@ def main() -> int:
             for d in args.eval_dirs:
                 results[str(d)] = summarise(*load_eval_dir(d))
         else:
+            from expoctl.evaluation.inputs import EvaluationInputs
             from expoctl.evaluation.runner import evaluate, write_outputs
             from stages.compose import compose_config
 
@@ -146,7 +147,7 @@ def main() -> int:
                 if not any(o.startswith("evaluate.controllers=") for o in overrides):
                     overrides = ["evaluate.controllers=[agae,fixed,mean_intensity]", *overrides]
                 t1 = time.time()
-                res = evaluate(compose_config(list(overrides)), ROOT)
+                res = evaluate(EvaluationInputs.from_resolved(compose_config(list(overrides))), ROOT)
                 if args.keep:
                     write_outputs(res, args.keep / name)
                 results[name] = summarise(res.frames, res.runs, res.metrics)

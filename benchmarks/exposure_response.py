@@ -42,6 +42,7 @@ from expoctl.features.pipeline import make_frontend  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
 from expoctl.sim import exposure_sweep as xs  # noqa: E402
+from expoctl.camera.sensor import SensorConfig  # noqa: E402
 from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
 
@@ -212,7 +213,7 @@ def main() -> int:
     world, rig = _conf("world"), RigConfig.from_dict(_conf("rig"))
     render = RenderConfig.from_world(world).with_size(args.width, args.height)
     city = load_city(world["cities"][args.city], str(ROOT / world["city_dir"]))
-    sensor = make_sensors(_conf("sensor"), render, 1, 0.0, args.seed)[0][0]
+    sensor = make_sensors(SensorConfig.from_dict(_conf("sensor")), render, 1, 0.0, args.seed)[0][0]
     fcfg = _conf("features")
     fronts = {fe: make_frontend(fe, fcfg.get(fe)) for fe in FRONTENDS}
     t0 = time.perf_counter()

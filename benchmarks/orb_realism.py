@@ -33,6 +33,7 @@ from expoctl.features.orb import OrbFrontEnd  # noqa: E402
 from expoctl.features.pipeline import rgb_to_grey  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
+from expoctl.camera.sensor import SensorConfig  # noqa: E402
 from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop  # noqa: E402
 from expoctl.world import load_city  # noqa: E402
 
@@ -53,7 +54,7 @@ def measure(city_name: str, width: int, height: int, every: int, before_s: float
     exit_ = next(tc for tc, _, kind in traj.portal_times_s if kind == "exit" and tc > entry)
     start, stop = int((entry - before_s) * rig.fps), int((exit_ + after_s) * rig.fps)
     scene = RouteScene(city, traj, rig, render)
-    sensors, _ = make_sensors(_conf("sensor"), render, 1, 0.0, seed)
+    sensors, _ = make_sensors(SensorConfig.from_dict(_conf("sensor")), render, 1, 0.0, seed)
     fcfg = _conf("features")["orb"]
     fronts = {
         "spec_orb1500_native": OrbFrontEnd({**fcfg, "working_size": None, "match_nfeatures": 1500}),

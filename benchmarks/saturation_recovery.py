@@ -27,6 +27,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.controllers.learned import LearnedController  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
+from expoctl.evaluation.inputs import EvaluationInputs  # noqa: E402
 from expoctl.selection.saturation_probe import ProbeConfig, make_probe  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
 
@@ -55,7 +56,7 @@ def main() -> int:
     pcfg = ProbeConfig.from_dict({"city": "train", "traversal": 900, "seed": args.seed, "frames": args.frames,
                                   "offsets_ev": args.offsets, "width": args.width, "height": args.height}, "probe")
     t0 = time.perf_counter()
-    probe = make_probe(pcfg, _conf(), ROOT)
+    probe = make_probe(pcfg, EvaluationInputs.from_resolved(_conf()), ROOT)
     print(f"train city, traversal {pcfg.traversal}, {pcfg.width}×{pcfg.height}, {pcfg.frames} frames per run")
     for name, st in probe.starts.items():
         print(f"  {name} (frame {st['frame']}): starts at " + ", ".join(f"{a:+.1f}" for a in st["start_offsets_ev"])

@@ -6,7 +6,7 @@ import logging
 import sys
 import time
 
-from expoctl.sim.collect import collect
+from expoctl.sim.collect import CollectInputs, collect
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -40,10 +40,11 @@ def later_iteration_config(cfg: dict) -> dict:
 def run(cfg: dict, tracker) -> None:
     if cfg.get("iteration", 1) > 1:
         cfg = later_iteration_config(cfg)
+    inputs = CollectInputs.from_resolved(cfg)  # every config problem at once, before any work
     out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
     t0 = time.perf_counter()
     # a bar on a terminal; under DVC (no tty) one log line per finished sequence
-    summaries = collect(cfg, out_dir, progress=True if sys.stderr.isatty() else log.info, project_root=PROJECT_ROOT)
+    summaries = collect(inputs, out_dir, progress=True if sys.stderr.isatty() else log.info, project_root=PROJECT_ROOT)
     seconds = time.perf_counter() - t0
     n_frames = sum(s["n_frames"] for s in summaries)
     metrics = {

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
 from expoctl.host import host_cpu
 from stages.common import PROJECT_ROOT, stage_main
@@ -33,8 +34,9 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
     if "final_model" in cfg.get("paths", {}):
         cfg = final_model_config(cfg)
+    inputs = EvaluationInputs.from_resolved(cfg)  # every config problem at once, before any work
     t0 = time.perf_counter()
-    result = evaluate(cfg, root, progress=sys.stderr.isatty())
+    result = evaluate(inputs, root, progress=sys.stderr.isatty())
     seconds = time.perf_counter() - t0
     out = write_outputs(result, root / cfg["paths"]["reports_dir"])
     runs = result.runs

@@ -19,7 +19,9 @@ import sys
 import time
 from pathlib import Path
 
+from expoctl.config_reader import Problems
 from expoctl.errors import InputError
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.saturation_probe import summary_line
 from expoctl.selection.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
 from stages.common import PROJECT_ROOT, stage_main
@@ -50,7 +52,10 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     from expoctl.io import atomic_path, write_json
 
     root = Path(project_root or PROJECT_ROOT)
-    scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigError before any work
+    problems = Problems()  # every config problem at once, before any work
+    scfg = SelectConfig.from_dict(cfg.get("select_model"), "select_model", problems)
+    inputs = EvaluationInputs.from_resolved(cfg, problems)
+    problems.raise_if_any()
     cands = candidates(cfg, root)
     for c in cands:
         for p in (c.path, c.path.with_suffix(".onnx")):
@@ -60,7 +65,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     pool = cands
     if scfg.probe.enabled and len(cands) > 1:
         t0 = time.perf_counter()
-        results = probe_candidates(cfg, cands, root, scfg.probe)
+        results = probe_candidates(inputs, cands, root, scfg.probe)
         pool = probe_filter(cands, results)
         failed = [c.name for c in cands if not results[c.name]["passes"]]
         probe = {"config": dataclasses.asdict(scfg.probe), "results": results, "failed": failed,
@@ -71,7 +76,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         for c in cands:
             log.info("probe %s", summary_line(c.name, results[c.name]))
     if scfg.enabled:
-        result = select_model(cfg, pool, root, progress=sys.stderr.isatty())
+        result = select_model(inputs, scfg, pool, root, progress=sys.stderr.isatty())
         chosen, scores, reference, seconds = result.chosen, result.scores, result.reference, result.seconds
         windows = [{"sequence": w.sequence, "label": w.label, "start": w.start, "stop": w.stop}
                    for w in result.windows]

@@ -44,13 +44,15 @@ def _path(p) -> Path:
 
 
 def configs(cfg: dict) -> tuple[ModelConfig, TrainConfig, int]:
-    """Validate the stage's config sections before any work."""
-    from expoctl.errors import ConfigError
+    """The stage's typed configs, built once before any work; every problem of the three at once (ConfigError)."""
+    from expoctl.config_reader import Problems, Section, read_seed
 
-    seed = cfg.get("seed", 0)
-    if not isinstance(seed, int):
-        raise ConfigError("seed", f"must be an int, got {seed!r}")
-    return ModelConfig.from_dict(cfg.get("model")), TrainConfig.from_dict(cfg.get("train")), seed
+    problems = Problems()
+    seed = read_seed(Section(cfg, "", problems))
+    model_cfg = problems.collect(ModelConfig.from_dict, cfg.get("model"))
+    train_cfg = problems.collect(TrainConfig.from_dict, cfg.get("train"))
+    problems.raise_if_any()
+    return model_cfg, train_cfg, seed
 
 
 def train_from_config(cfg: dict, on_epoch=None, sets=None):

@@ -16,4 +16,14 @@ class ConfigError(InputError):
     def __init__(self, key: str, problem: str):
         self.key = key
         self.problem = problem
+        self.problems = [(key, problem)]
         super().__init__(f"config key '{key}': {problem}")
+
+    @classmethod
+    def of(cls, problems: list[tuple[str, str]]) -> "ConfigError":
+        """One error for every (key, problem) found in one pass: `key`/`problem` are the first's, the message
+        names them all ("config key 'a': …; config key 'b': …")."""
+        err = cls(*problems[0])
+        err.problems = list(problems)
+        err.args = ("; ".join(f"config key '{k}': {p}" for k, p in problems),)
+        return err

@@ -56,3 +56,26 @@ def test_reset_refills_the_pipeline_and_bad_latency_is_refused():
     for bad in (0, -1, 1.5, True):
         with pytest.raises(ValueError):
             DelayedController(FrameStamp(), bad)
+
+
+@pytest.mark.parametrize("value, problem", [(1, None), (3, None), (0, "must be an integer >= 1, got 0"),
+                                            (True, "must be an integer >= 1, got True"),
+                                            (1.5, "must be an integer >= 1, got 1.5")])
+def test_latency_frames_has_one_definition(value, problem):
+    """controllers.learned.latency_frames and labels.latency_frames (which follows it) are read by one function."""
+    from expoctl.config_reader import Section
+    from expoctl.controllers.base import read_latency_frames
+    from expoctl.errors import ConfigError
+    from expoctl.labels.targets import LabelConfig
+
+    for key in ("controllers.learned", "labels"):
+        r = Section({"latency_frames": value}, key)
+        got = read_latency_frames(r)
+        if problem is None:
+            assert got == value
+            r.done()
+        else:
+            with pytest.raises(ConfigError) as exc:
+                r.done()
+            assert exc.value.problems == [(f"{key}.latency_frames", problem)]
+    assert read_latency_frames(Section({}, "labels")) == 1 == LabelConfig.from_dict({}).latency_frames

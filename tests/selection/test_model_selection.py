@@ -12,6 +12,7 @@ import pytest
 from eval_fixtures import selection_project, use_real_or_test_sensor
 
 from expoctl.errors import ConfigError, InputError
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.model_selection import (Candidate, SelectConfig, choose, run_statistics, score_candidates,
                                                select_model)
 
@@ -114,13 +115,19 @@ def test_run_statistics_exact():
 # --------------------------------------------------------------------------------------------- closed loop, fixture
 
 
+def _select(cfg, cands, root):
+    """select_model as the stage calls it: on the typed configs built once from the resolved config."""
+    return select_model(EvaluationInputs.from_resolved(cfg), SelectConfig.from_dict(cfg.get("select_model")), cands,
+                        root)
+
+
 @pytest.fixture(scope="module")
 def selected(tmp_path_factory):
     mp = pytest.MonkeyPatch()
     use_real_or_test_sensor(mp)
     root = tmp_path_factory.mktemp("select")
     cfg, cands = selection_project(root)
-    yield cfg, cands, select_model(cfg, cands, root), root
+    yield cfg, cands, _select(cfg, cands, root), root
     mp.undo()
 
 
@@ -149,7 +156,7 @@ def test_selection_drives_the_training_city_only(selected):
 
 def test_one_candidate_is_not_driven(tmp_path):
     cfg, cands = selection_project(tmp_path)
-    result = select_model(cfg, cands[:1], tmp_path)
+    result = _select(cfg, cands[:1], tmp_path)
     assert result.chosen.name == "iteration1" and result.scores == [] and result.runs.empty
 
 
@@ -157,7 +164,7 @@ def test_selection_traversals_must_not_be_evaluated_ones(tmp_path):
     cfg, cands = selection_project(tmp_path)
     cfg["select_model"] = {"city": "validation", "first_traversal": 0}  # evaluate drives validation traversal 0
     with pytest.raises(ConfigError) as e:
-        select_model(cfg, cands, tmp_path)
+        _select(cfg, cands, tmp_path)
     assert e.value.key == "select_model.first_traversal" and "[0]" in str(e.value)
 
 
@@ -165,7 +172,7 @@ def test_missing_candidate_stops_before_driving(tmp_path):
     cfg, cands = selection_project(tmp_path)
     cands[1].path.unlink()
     with pytest.raises(InputError, match="white.pt: the iteration2 network is missing"):
-        select_model(cfg, cands, tmp_path)
+        _select(cfg, cands, tmp_path)
 
 
 def test_probe_filter_keeps_the_passing_candidates_in_order_or_all_when_none_pass():

@@ -71,6 +71,7 @@ def test_settings_at_is_the_inverse_of_the_exposure_value():
 def probe(tmp_path_factory):
     from eval_fixtures import make_fixture_project
 
+    from expoctl.evaluation.inputs import EvaluationInputs
     from expoctl.selection.saturation_probe import make_probe
 
     root = tmp_path_factory.mktemp("probe")
@@ -79,7 +80,7 @@ def probe(tmp_path_factory):
     # ~2.5 EV (seen unsaturated) decay by 0.873 per frame; more frames would carry the tunnel start out of the exit
     pcfg = ProbeConfig.from_dict({"frames": 48, "width": 64, "height": 48, "first_frames": 4, "last_frames": 4}, "p")
     cfg["world"]["cities"]["train"] = {"base": "train", "textures": {"tile_px": 256}}
-    return make_probe(pcfg, cfg, root), cfg
+    return make_probe(pcfg, EvaluationInputs.from_resolved(cfg), root), cfg
 
 
 def test_agae_returns_to_its_own_level_from_a_bright_start(probe):

@@ -6,7 +6,7 @@ import yaml
 
 from expoctl.errors import ConfigError
 from expoctl.sim.closed_loop import RigConfig
-from expoctl.sim.collect import CollectConfig, collect, plan_sequences
+from expoctl.sim.collect import CollectConfig, CollectInputs, collect, plan_sequences
 from expoctl.raw.validate import validate_raw_dir
 from expoctl.sim.protocol import perturb, PerturbationConfig
 from expoctl.controllers.base import Settings
@@ -50,7 +50,7 @@ def tiny(city_dir):
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory, city_dir):
     out = tmp_path_factory.mktemp("raw") / "raw"
-    summaries = collect(tiny(city_dir), out, progress=False)
+    summaries = collect(CollectInputs.from_resolved(tiny(city_dir)), out, progress=False)
     return out, summaries
 
 
@@ -86,7 +86,7 @@ def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
     cfg = tiny(city_dir)
     cfg["collect"]["splits"]["validation"] = None
     again = tmp_path / "again"
-    collect(cfg, again, progress=False)
+    collect(CollectInputs.from_resolved(cfg), again, progress=False)
     a, b = out / "train" / "train-small-t000", again / "train" / "train-small-t000"
     assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
     assert (a / "sequence.yaml").read_text() == (b / "sequence.yaml").read_text()
@@ -94,7 +94,7 @@ def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
         assert p.read_bytes() == (b / "cam2" / p.name).read_bytes()
     cfg["seed"] = 4
     other = tmp_path / "other"
-    collect(cfg, other, progress=False)
+    collect(CollectInputs.from_resolved(cfg), other, progress=False)
     assert (other / "train" / "train-small-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
 
 
@@ -104,7 +104,7 @@ def test_process_pool_gives_the_same_bytes(tiny_run, tmp_path, city_dir):
     cfg = tiny(city_dir)
     cfg["collect"]["n_jobs"] = 2
     again = tmp_path / "again"
-    collect(cfg, again, progress=False)
+    collect(CollectInputs.from_resolved(cfg), again, progress=False)
     for seq in ("train/train-small-t000", "validation/validation-small-t005"):
         a, b = out / seq, again / seq
         assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()
@@ -118,9 +118,9 @@ def test_failure_leaves_previous_output_untouched(tmp_path, city_dir):
     (out / "train" / "keep").mkdir(parents=True)
     (out / "train" / "keep" / "marker").write_text("x")
     cfg = tiny(city_dir)
-    cfg["world"]["render"]["blur"] = "smeared"  # rejected by the renderer inside the worker, mid-run
+    cfg["world"]["render"]["blur"] = "smeared"
     with pytest.raises(ConfigError, match="world.render.blur"):
-        collect(cfg, out, progress=False)
+        collect(CollectInputs.from_resolved(cfg), out, progress=False)
     assert (out / "train" / "keep" / "marker").read_text() == "x"
     assert sorted(p.name for p in out.iterdir()) == ["train"]
 
@@ -161,7 +161,7 @@ def _with(path, value, city_dir):
 )
 def test_bad_config_names_the_key(path, value, key, tmp_path, city_dir):
     with pytest.raises(ConfigError) as e:
-        collect(_with(path, value, city_dir), tmp_path / "raw", progress=False)
+        collect(CollectInputs.from_resolved(_with(path, value, city_dir)), tmp_path / "raw", progress=False)
     assert e.value.key == key
     assert not (tmp_path / "raw").exists()
 
@@ -169,11 +169,11 @@ def test_bad_config_names_the_key(path, value, key, tmp_path, city_dir):
 def test_plan_names_and_seeds(city_dir):
     cfg = tiny(city_dir)
     cfg["collect"]["splits"]["train"]["n_sequences"] = 3
-    jobs = plan_sequences(cfg)
+    jobs = plan_sequences(CollectInputs.from_resolved(cfg))
     assert [j.name for j in jobs] == ["train-small-t000", "train-small-t001", "train-small-t002", "validation-small-t005"]
     assert len({j.seed for j in jobs}) == 4
     assert [j.traversal_frames for j in jobs] == [8, 8, 8, 7]  # warm-up + recorded
-    assert plan_sequences(cfg) == jobs
+    assert plan_sequences(CollectInputs.from_resolved(cfg)) == jobs
 
 
 def test_config_file_parses():
@@ -185,3 +185,29 @@ def test_config_file_parses():
     assert cfg.splits["train"].n_sequences >= 8 and cfg.splits["train"].frames >= 300
     rig = RigConfig.from_dict(yaml.safe_load((root / "conf" / "rig" / "default.yaml").read_text()))
     assert rig.baseline_m == 0.0392 and rig.fps == 15.0
+
+
+def test_every_config_problem_in_one_pass(city_dir):
+    cfg = _with(("collect", "warmup_frames"), -1, city_dir)
+    cfg["rig"]["fps"] = "fast"
+    cfg["world"]["render"]["width"] = 0
+    cfg["seed"] = -1
+    with pytest.raises(ConfigError) as e:
+        CollectInputs.from_resolved(cfg)
+    assert e.value.problems == [
+        ("collect.warmup_frames", "must be an integer >= 0, got -1"),
+        ("seed", "must be an integer >= 0, got -1"),
+        ("world.render.width", "must be an integer in [16, 8192] pixels, got 0"),
+        ("rig.fps", "must be a number > 0, got 'fast'"),
+    ]
+
+
+def test_inputs_are_built_once_and_picklable_for_the_workers(city_dir):
+    import pickle
+
+    inputs = CollectInputs.from_resolved(tiny(city_dir))
+    assert inputs.seed == 3 and inputs.reference_params == {"damping": 0.2}
+    assert (inputs.world.render.width, inputs.world.render.height, inputs.rig.fps) == (64, 48, 15.0)
+    assert pickle.loads(pickle.dumps(inputs)) == inputs
+    with pytest.raises(AttributeError):  # frozen: a worker cannot change what the stage built
+        inputs.seed = 4

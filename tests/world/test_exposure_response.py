@@ -13,6 +13,7 @@ import yaml
 
 from expoctl.features.pipeline import make_frontend
 from expoctl.sim import exposure_sweep as xs
+from expoctl.camera.sensor import SensorConfig
 from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors
 from expoctl.world import load_city
 
@@ -32,7 +33,7 @@ def world():
     traj = city.traversal(0, None, rig.fps, 0)
     assert not traj.conditions.overcast  # the open-road pose is in sunlight
     scene = RouteScene(city, traj, rig, render)
-    sensor = make_sensors(_conf("sensor"), render, 1, 0.0, 0)[0][0]
+    sensor = make_sensors(SensorConfig.from_dict(_conf("sensor")), render, 1, 0.0, 0)[0][0]
     fronts = {"orb": make_frontend("orb", _conf("features")["orb"])}
     return scene, sensor, fronts, xs.pose_frames(city, traj)
 

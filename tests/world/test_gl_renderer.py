@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError
-from expoctl.world import Renderer, load_city, make_renderer, validate_render_config
+from expoctl.world import RenderConfig, Renderer, load_city, make_renderer
 from expoctl.world import gl_renderer
 from expoctl.world import route as rt
 from expoctl.world.raycast import FACE, PROP, SIDE, SKY, TCEIL, TWALL
@@ -135,7 +135,7 @@ def test_backend_config(gl_ok):
 
 def test_bad_backend_name_names_the_key():
     with pytest.raises(ConfigError, match=r"world\.render\.backend"):
-        validate_render_config({"backend": "vulkan"})
+        RenderConfig.from_dict({"backend": "vulkan"})
     with pytest.raises(ConfigError, match=r"world\.render\.backend"):
         make_renderer(load_city("train"), {"backend": "opengl"})
 

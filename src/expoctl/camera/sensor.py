@@ -25,6 +25,7 @@ import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
 from expoctl.camera.response import Response, response_from_config
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import ConfigError, InputError
 
 PLANCK_J_S = 6.62607015e-34
@@ -53,51 +54,46 @@ class SensorConfig:
     white_balance_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)      # digital gain per channel before the curve
     poisson_exact_below: float = 10.0    # electrons; Gaussian shot-noise approximation above
 
-    _POSITIVE = ("quantum_efficiency", "full_well_e", "f_number", "lens_transmission", "pixel_pitch_um",
-                 "wavelength_nm", "response_gamma")
-    _NON_NEGATIVE = ("read_noise_e", "prnu", "dsnu_e", "black_level_fraction", "poisson_exact_below")
     _RGB = ("response_gamma_rgb", "response_pedestal_rgb", "white_balance_rgb")
 
     @classmethod
-    def from_dict(cls, d: dict | None, key: str = "sensor") -> "SensorConfig":
-        d = dict(d or {})
-        known = {f.name for f in dataclasses.fields(cls)}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (known: {sorted(known)})")
-        for k in cls._RGB:  # YAML gives lists; the frozen config holds tuples (hashable); validate() checks them
-            if isinstance(d.get(k), list):
-                d[k] = tuple(d[k])
-        try:
-            cfg = cls(**d)
-            cfg.validate(key)
-        except TypeError as exc:
-            raise ConfigError(key, str(exc)) from None
+    def from_dict(cls, d: dict | None, key: str = "sensor", problems: Problems | None = None) -> "SensorConfig":
+        r = Section(d, key, problems)
+        positive, non_negative = dict(above=0.0), dict(min=0.0)
+
+        def rgb(name):  # YAML gives lists; the frozen config holds tuples (hashable)
+            v = r.value(name, getattr(cls, name))
+            return tuple(v) if isinstance(v, list) else v
+
+        cfg = cls(
+            quantum_efficiency=r.number("quantum_efficiency", cls.quantum_efficiency, above=0.0, max=1.0),
+            full_well_e=r.number("full_well_e", cls.full_well_e, **positive),
+            read_noise_e=r.number("read_noise_e", cls.read_noise_e, **non_negative),
+            prnu=r.number("prnu", cls.prnu, min=0.0, below=0.5),
+            dsnu_e=r.number("dsnu_e", cls.dsnu_e, **non_negative),
+            adc_bits=r.integer("adc_bits", cls.adc_bits, min=8, max=16),
+            system_gain_dn_per_e=r.number("system_gain_dn_per_e", cls.system_gain_dn_per_e, nullable=True,
+                                          **positive),
+            black_level_fraction=r.number("black_level_fraction", cls.black_level_fraction, min=0.0, below=0.5),
+            f_number=r.number("f_number", cls.f_number, **positive),
+            lens_transmission=r.number("lens_transmission", cls.lens_transmission, above=0.0, max=1.0),
+            pixel_pitch_um=r.number("pixel_pitch_um", cls.pixel_pitch_um, **positive),
+            wavelength_nm=r.number("wavelength_nm", cls.wavelength_nm, **positive),
+            # the response keys' bounds are response_from_config's (shared with AG+AE's model), checked below
+            response_curve=r.value("response_curve", cls.response_curve),
+            response_gamma=r.value("response_gamma", cls.response_gamma),
+            response_gamma_rgb=rgb("response_gamma_rgb"),
+            response_pedestal_rgb=rgb("response_pedestal_rgb"),
+            white_balance_rgb=rgb("white_balance_rgb"),
+            poisson_exact_below=r.number("poisson_exact_below", cls.poisson_exact_below, **non_negative),
+        )
+        r.problems.collect(response_from_config, cfg.to_dict(), key)
+        r.done()
         return cfg
 
     def validate(self, key: str = "sensor") -> None:
-        for name in self._POSITIVE:
-            v = getattr(self, name)
-            if not _finite_number(v) or v <= 0:
-                raise ConfigError(f"{key}.{name}", f"must be a positive number, got {v!r}")
-        for name in self._NON_NEGATIVE:
-            v = getattr(self, name)
-            if not _finite_number(v) or v < 0:
-                raise ConfigError(f"{key}.{name}", f"must be a non-negative number, got {v!r}")
-        if not 0 < self.quantum_efficiency <= 1:
-            raise ConfigError(f"{key}.quantum_efficiency", f"must be in (0, 1], got {self.quantum_efficiency}")
-        if not 0 < self.lens_transmission <= 1:
-            raise ConfigError(f"{key}.lens_transmission", f"must be in (0, 1], got {self.lens_transmission}")
-        if not (isinstance(self.adc_bits, int) and 8 <= self.adc_bits <= 16):
-            raise ConfigError(f"{key}.adc_bits", f"must be an integer in 8…16, got {self.adc_bits!r}")
-        if self.system_gain_dn_per_e is not None and (
-                not _finite_number(self.system_gain_dn_per_e) or self.system_gain_dn_per_e <= 0):
-            raise ConfigError(f"{key}.system_gain_dn_per_e", f"must be positive or null, got {self.system_gain_dn_per_e!r}")
-        if self.black_level_fraction >= 0.5:
-            raise ConfigError(f"{key}.black_level_fraction", f"must be below 0.5, got {self.black_level_fraction}")
-        if self.prnu >= 0.5:
-            raise ConfigError(f"{key}.prnu", f"must be below 0.5, got {self.prnu}")
-        response_from_config(self.to_dict(), key)
+        """The same checks as a config read (one definition of the bounds: `from_dict`)."""
+        type(self).from_dict(self.to_dict(), key)
 
     @property
     def adc_max_dn(self) -> int:

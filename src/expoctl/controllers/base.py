@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from expoctl.camera.ranges import clamp_settings
+from expoctl.config_reader import Section, is_integer
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,17 @@ class TimedController(Controller):
         return out
 
 
+#: A command computed from frame t exposes frame t + 1 at the earliest (nothing changes the frame it was computed
+#: from), so a latency counts at least one frame.
+LATENCY_FRAMES_MIN = 1
+
+
+def read_latency_frames(section: Section) -> int:
+    """The `latency_frames` key of a config section (`controllers.learned`, `labels`, which follows it): the one
+    definition of its type, default and bounds."""
+    return section.integer("latency_frames", 1, min=LATENCY_FRAMES_MIN)
+
+
 class DelayedController(Controller):
     """Delegates to a controller whose commands land `latency_frames` frames after the frame they were computed from.
 
@@ -75,8 +87,8 @@ class DelayedController(Controller):
     """
 
     def __init__(self, inner: Controller, latency_frames: int):
-        if isinstance(latency_frames, bool) or not isinstance(latency_frames, int) or latency_frames < 1:
-            raise ValueError(f"latency_frames must be an integer ≥ 1, got {latency_frames!r}")
+        if not is_integer(latency_frames) or latency_frames < LATENCY_FRAMES_MIN:
+            raise ValueError(f"latency_frames must be an integer >= {LATENCY_FRAMES_MIN}, got {latency_frames!r}")
         self.inner = inner
         self.name = inner.name
         self.latency_frames = latency_frames

@@ -38,7 +38,8 @@ import torch
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.controllers.agae import ln_exposure_product, split_exposure_first
-from expoctl.controllers.base import Controller, DelayedController, Settings
+from expoctl.config_reader import Section
+from expoctl.controllers.base import Controller, DelayedController, Settings, read_latency_frames
 from expoctl.errors import ConfigError
 from expoctl.net.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
 
@@ -132,17 +133,12 @@ def make_learned(params: dict) -> Controller:
     `latency_frames` (simulator only): the network's settings computed from frame t expose frame t + latency_frames
     (1: the paper's rig; 2: the calibrated camera's earliest, docs/calibration.md). Train with the same value
     (`labels.latency_frames` follows it), so the labels target the frames the command can still change."""
-    allowed = {"checkpoint", "backend", "num_threads", "allocation", "latency_frames"}
-    unknown = set(params) - allowed
-    if unknown:
-        raise ConfigError(f"controllers.learned.{sorted(unknown)[0]}", f"unknown key (known: {sorted(allowed)})")
-    path = params.get("checkpoint", "models/controller.pt")
-    nt = params.get("num_threads", 1)
-    if nt is not None and (not isinstance(nt, int) or nt < 1):
-        raise ConfigError("controllers.learned.num_threads", f"must be a positive int or null, got {nt!r}")
-    latency = params.get("latency_frames", 1)
-    if isinstance(latency, bool) or not isinstance(latency, int) or latency < 1:
-        raise ConfigError("controllers.learned.latency_frames", f"must be an integer ≥ 1, got {latency!r}")
-    ctrl = LearnedController.from_checkpoint(path, num_threads=nt, backend=params.get("backend", "torch"),
-                                             allocation=params.get("allocation", "network"))
+    r = Section(params, "controllers.learned")
+    path = r.value("checkpoint", "models/controller.pt")
+    backend = r.value("backend", "torch")  # checked with the checkpoint (onnx needs its .onnx file)
+    nt = r.integer("num_threads", 1, min=1, nullable=True)
+    allocation = r.choice("allocation", ALLOCATIONS, "network")
+    latency = read_latency_frames(r)
+    r.done()
+    ctrl = LearnedController.from_checkpoint(path, num_threads=nt, backend=backend, allocation=allocation)
     return ctrl if latency == 1 else DelayedController(ctrl, latency)

@@ -13,7 +13,8 @@ Outputs (`write_outputs`): reports/metrics.json (docs/evaluation.md), reports/ev
 runs.parquet (per run: VO success, failed_at, ATE/RPE, timing), sections.parquet (per section statistics),
 sumlog.json, thumbs/<run_id>.npz (frames around the portals, for the report's image strips).
 
-Config read: `evaluate`, `seed`, `sensor`, `world`, `rig`, `controllers`, `features`, `paths.model`, `paths.frames`.
+Config read: `EvaluationInputs` (`expoctl.evaluation.inputs`), built once by the stage from `evaluate`, `seed`,
+`sensor`, `world`, `rig`, `controllers`, `features`, `paths.model`, `paths.frames`; every run's worker gets it as is.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ import pandas as pd
 
 from expoctl.errors import ConfigError, InputError
 from expoctl.evaluation.aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
-from expoctl.evaluation.config import ROUTE_SPLITS, EvaluateConfig, SplitPlan
+from expoctl.evaluation.config import ROUTE_SPLITS, SplitPlan
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.features.sumlog import SumLogParams
 
 
@@ -61,7 +63,7 @@ class Window:
 class RunJob:
     window: Window
     controller: str
-    cfg: dict = field(repr=False)
+    inputs: EvaluationInputs = field(repr=False)
     sumlog: dict[str, SumLogParams] = field(repr=False)
     model_path: str | None = None
     label: str = ""  # names the run instead of `controller` when several runs of a window share one (model selection)
@@ -85,37 +87,31 @@ class EvaluationResult:
 # --------------------------------------------------------------------------------------------------------- planning
 
 
-def plan_windows(cfg: dict, project_root: str | os.PathLike = ".") -> list[Window]:
+def plan_windows(inputs: EvaluationInputs, project_root: str | os.PathLike = ".") -> list[Window]:
     """Every window of the evaluation, in order (loads the cities' geometry, renders nothing)."""
-    from expoctl.sim.closed_loop import RigConfig
-
-    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
-    rig = RigConfig.from_dict(cfg.get("rig"))
+    ecfg = inputs.evaluate
     windows: list[Window] = []
     for split in ROUTE_SPLITS:
         plan = ecfg.splits.get(split)
         if plan is not None:
-            windows += city_windows(cfg, project_root, split, split, plan, f"evaluate.splits.{split}", rig.fps,
-                                    ecfg.warmup_frames)
+            windows += city_windows(inputs, project_root, split, split, plan, f"evaluate.splits.{split}",
+                                    inputs.rig.fps, ecfg.warmup_frames)
     if not windows:
         raise ConfigError("evaluate.splits", "plans no window (give validation and/or test a plan)")
     return windows
 
 
-def city_windows(cfg: dict, project_root: str | os.PathLike, label: str, city_key: str, plan: SplitPlan,
+def city_windows(inputs: EvaluationInputs, project_root: str | os.PathLike, label: str, city_key: str, plan: SplitPlan,
                  plan_key: str, fps: float, warmup_frames: int) -> list[Window]:
     """The windows `plan` asks for on `world.cities.<city_key>`, labelled `label` (their route_split; it also seeds
     the traversals and noise, so two labels never share a window). `plan_key` is the config key errors name."""
-    from expoctl.sim.collect import config_seed, derive_seed
+    from expoctl.sim.collect import derive_seed
     from expoctl.world import load_city_cached
     from expoctl.world.cities import resolve_city_name
 
-    base_seed = config_seed(cfg)
-    world = cfg.get("world") or {}
-    city_dir = world.get("city_dir")
-    if city_dir is not None:
-        city_dir = str((Path(project_root) / city_dir).resolve())
-    cities = world.get("cities") or {}
+    base_seed = inputs.seed
+    world = inputs.world.under(project_root)
+    city_dir, cities = world.city_dir, world.cities
     if city_key not in cities:
         raise ConfigError(f"world.cities.{city_key}", f"missing: {plan_key} needs a city")
     spec = cities[city_key]
@@ -184,13 +180,14 @@ def window_annotations(traj, start: int, stop: int) -> tuple[list[str], np.ndarr
 # ------------------------------------------------------------------------------------------------------- SumLog
 
 
-def tune_sumlog_params(cfg: dict, project_root: str | os.PathLike, n_pairs: int) -> dict[str, SumLogParams]:
+def tune_sumlog_params(inputs: EvaluationInputs, project_root: str | os.PathLike,
+                       n_pairs: int) -> dict[str, SumLogParams]:
     """SumLog parameters per front end, tuned on sequential camera-1 training pairs (see module docstring)."""
-    from expoctl.features.pipeline import FeaturesConfig, iter_training_pairs_rgb, make_frontend
+    from expoctl.features.pipeline import iter_training_pairs_rgb, make_frontend
     from expoctl.features.sumlog import tune_sumlog
 
-    fcfg = FeaturesConfig.from_dict(cfg.get("features"))
-    frames_path = Path(project_root) / cfg["paths"]["frames"]
+    fcfg = inputs.features
+    frames_path = Path(project_root) / inputs.frames_path
     if not frames_path.is_file():
         raise InputError(f"{frames_path}: frames table missing (SumLog is tuned on the training frames); "
                          "run the ingest stage first")
@@ -212,46 +209,26 @@ def tune_sumlog_params(cfg: dict, project_root: str | os.PathLike, n_pairs: int)
 # ------------------------------------------------------------------------------------------------------------- runs
 
 
-def learned_model_path(cfg: dict, project_root: str | os.PathLike) -> Path:
-    section = (cfg.get("controllers") or {}).get("learned") or {}
-    p = Path(section.get("checkpoint") or cfg["paths"]["model"])
-    return p if p.is_absolute() else Path(project_root) / p
-
-
-def _controller_params(cfg: dict, name: str) -> dict:
-    section = (cfg.get("controllers") or {}).get(name)
-    if section is None:
-        return {}
-    if not isinstance(section, dict):
-        raise ConfigError(f"controllers.{name}", f"must be a mapping, got {section!r}")
-    return dict(section)
-
-
 def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
     """Render and evaluate one run (runs in a worker process)."""
     import expoctl.sim.oracle as oracle_mod
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
     from expoctl.evaluation.run import WindowFrames, drive_window
-    from expoctl.features.pipeline import FeaturesConfig, make_frontend
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, rig_metadata
+    from expoctl.features.pipeline import make_frontend
+    from expoctl.sim.closed_loop import RouteScene, make_sensors, rig_metadata
     from expoctl.world import load_city_cached
     from expoctl.vo.frame_to_frame import intrinsics_matrix
 
     oracle_mod.register_oracle()
-    cfg, w = job.cfg, job.window
-    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
-    fcfg = FeaturesConfig.from_dict(cfg.get("features"))
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    render = RenderConfig.from_world(cfg.get("world"))
-    if ecfg.render_size is not None:
-        render = render.with_size(*ecfg.render_size)
+    inputs, w = job.inputs, job.window
+    ecfg, fcfg, rig, render = inputs.evaluate, inputs.features, inputs.rig, inputs.render
     city = load_city_cached(w.city, w.city_dir)
     traj = _traversal_cached(city, w, rig.fps)
     scene = RouteScene(city, traj, rig, render)
-    sensors, _ = make_sensors(cfg.get("sensor"), render, 1, ecfg.sensor_randomisation, w.seed)
+    sensors, _ = make_sensors(inputs.sensor, render, 1, ecfg.sensor_randomisation, w.seed)
     warmup = ecfg.warmup_frames
-    params = _controller_params(cfg, job.controller)
+    params = inputs.controller_params(job.controller)
     if job.controller == "oracle":
         scene = oracle_mod.CachedScene(scene)
         oparams = oracle_mod.OracleParams.from_dict(params)
@@ -298,33 +275,31 @@ def _traversal_cached(city, w: Window, fps: float):
     return _TRAJ_CACHE[key]
 
 
-def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = False) -> EvaluationResult:
+def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
+             progress: bool = False) -> EvaluationResult:
     """Plan, tune SumLog, run every (window, controller) and aggregate (no files written)."""
     from expoctl.controllers.registry import make_controller
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
     project_root = Path(project_root)
-    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))  # ConfigErrors before any work
-    RigConfig.from_dict(cfg.get("rig"))
-    RenderConfig.from_world(cfg.get("world"))
-    for name in ecfg.controllers:
+    ecfg = inputs.evaluate
+    for name in ecfg.controllers:  # their params, before any work
         if name not in ("learned", "oracle"):
-            make_controller(name, _controller_params(cfg, name))
+            make_controller(name, inputs.controller_params(name))
     model_path = None
     if "learned" in ecfg.controllers:
-        model_path = learned_model_path(cfg, project_root)
+        model_path = inputs.learned_model_path(project_root)
         if not model_path.is_file():
             raise InputError(f"{model_path}: trained model missing — the 'learned' controller cannot run; run the "
                              "train stage first (or drop 'learned' from evaluate.controllers)")
     if "oracle" in ecfg.controllers:
         from expoctl.sim.oracle import OracleParams
 
-        OracleParams.from_dict(_controller_params(cfg, "oracle"))
-    windows = plan_windows(cfg, project_root)
-    sumlog = tune_sumlog_params(cfg, project_root, ecfg.sumlog_pairs)
+        OracleParams.from_dict(inputs.controller_params("oracle"))
+    windows = plan_windows(inputs, project_root)
+    sumlog = tune_sumlog_params(inputs, project_root, ecfg.sumlog_pairs)
     # the oracle is the slowest run: start those first so the pool does not end on one long job
     order = sorted(ecfg.controllers, key=lambda c: c != "oracle")
-    jobs = [RunJob(w, c, cfg, sumlog, None if model_path is None else str(model_path)) for c in order for w in windows]
+    jobs = [RunJob(w, c, inputs, sumlog, None if model_path is None else str(model_path)) for c in order for w in windows]
     rows: list[dict] = []
     summaries: list[dict] = []
     thumbs: dict[str, dict] = {}
@@ -338,7 +313,7 @@ def evaluate(cfg: dict, project_root: str | os.PathLike = ".", progress: bool = 
     metrics = build_metrics(sections, runs)
     problems = validate_metrics(metrics, ecfg.controllers, [s for s in ROUTE_SPLITS if s in ecfg.splits])
     if problems:
-        raise ValueError("metrics.json would break the DESIGN schema: " + "; ".join(problems))
+        raise ValueError("metrics.json would break its schema (docs/evaluation.md): " + "; ".join(problems))
     return EvaluationResult(frames, runs, sections, metrics, sumlog, thumbs, windows)
 
 

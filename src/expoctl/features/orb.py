@@ -14,13 +14,13 @@ geometry valid (a scaling is a projective map), so verifying at the working size
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import cv2
 import numba
 import numpy as np
 
-from expoctl.errors import ConfigError
+from expoctl.config_reader import Section, is_integer
 from expoctl.features.verify import VerifyParams, count_fundamental_inliers
 
 
@@ -42,25 +42,27 @@ class OrbParams:
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "features.orb") -> "OrbParams":
         """Build from a config dict (missing keys take the defaults above); raise ConfigError on bad values."""
-        d = dict(d or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"{key}.{unknown[0]}", f"unknown key (known: {', '.join(sorted(names))})")
-        if "working_size" in d and d["working_size"] is not None:
-            ws = d["working_size"]
-            if not (isinstance(ws, (list, tuple)) and len(ws) == 2 and all(_is_int(v) and v >= 32 for v in ws)):
-                raise ConfigError(f"{key}.working_size", f"must be [width, height] with both >= 32, or null; got {ws!r}")
-            d["working_size"] = (int(ws[0]), int(ws[1]))
-        for name in ("count_nfeatures", "match_nfeatures", "n_levels", "edge_threshold", "patch_size", "ransac_max_iters"):
-            if name in d and not (_is_int(d[name]) and d[name] >= 1):
-                raise ConfigError(f"{key}.{name}", f"must be a positive integer, got {d[name]!r}")
-        if "fast_threshold" in d and not (_is_int(d["fast_threshold"]) and 0 <= d["fast_threshold"] <= 255):
-            raise ConfigError(f"{key}.fast_threshold", f"must be an integer in [0, 255], got {d['fast_threshold']!r}")
-        if "scale_factor" in d and not (isinstance(d["scale_factor"], (int, float)) and d["scale_factor"] > 1):
-            raise ConfigError(f"{key}.scale_factor", f"must be > 1, got {d['scale_factor']!r}")
-        params = cls(**d)
-        params.verify_params()  # validates the RANSAC keys
+        r = Section(d, key)
+        ws = r.value("working_size", cls.working_size)
+        if ws is not None:
+            if not (isinstance(ws, (list, tuple)) and len(ws) == 2 and all(is_integer(v) and v >= 32 for v in ws)):
+                r.problem("working_size", f"must be [width, height] with both >= 32, or null; got {ws!r}")
+                ws = cls.working_size
+            ws = (int(ws[0]), int(ws[1]))
+        positive = {name: r.integer(name, getattr(cls, name), min=1) for name in (
+            "count_nfeatures", "match_nfeatures", "n_levels", "edge_threshold", "patch_size", "ransac_max_iters")}
+        params = cls(
+            working_size=ws,
+            scale_factor=r.number("scale_factor", cls.scale_factor, above=1),
+            fast_threshold=r.integer("fast_threshold", cls.fast_threshold, min=0, max=255),
+            # the RANSAC keys' bounds are VerifyParams' (checked below, with the others' problems)
+            ransac_threshold_px=r.number("ransac_threshold_px", cls.ransac_threshold_px),
+            ransac_confidence=r.number("ransac_confidence", cls.ransac_confidence),
+            ransac_method=r.text("ransac_method", cls.ransac_method),
+            **positive,
+        )
+        r.problems.collect(params.verify_params)
+        r.done()
         return params
 
     def verify_params(self) -> VerifyParams:
@@ -70,10 +72,6 @@ class OrbParams:
             max_iters=int(self.ransac_max_iters),
             method=self.ransac_method,
         )
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
 @dataclass(frozen=True)

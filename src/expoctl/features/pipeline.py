@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from expoctl.config_reader import Problems, Section, is_integer
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.frontend import PairCounts
 from expoctl.features.sumlog import SumLogGrid
@@ -47,31 +48,24 @@ class FeaturesConfig:
     sumlog: SumLogGrid = SumLogGrid()  # SumLog tuning grid (sumlog.tune_sumlog); not used by compute_features
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "FeaturesConfig":
-        d = dict(d or {})
-        known = {"frontends", "orb", "viso", "n_jobs", "seed", "sumlog"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"features.{k}", f"unknown key (known: {', '.join(sorted(known))})")
-        fronts = d.get("frontends", list(FRONTEND_NAMES))
-        if isinstance(fronts, str) or not isinstance(fronts, (list, tuple)) or not fronts:
-            raise ConfigError("features.frontends", f"must be a non-empty list of {FRONTEND_NAMES}, got {fronts!r}")
-        for name in fronts:
-            if name not in FRONTEND_NAMES:
-                raise ConfigError("features.frontends", f"unknown front end {name!r} (known: {', '.join(FRONTEND_NAMES)})")
-        if len(set(fronts)) != len(fronts):
-            raise ConfigError("features.frontends", f"lists a front end twice: {fronts!r}")
-        for key in ("orb", "viso"):
-            if d.get(key) is not None and not isinstance(d[key], dict):
-                raise ConfigError(f"features.{key}", f"must be a mapping, got {d[key]!r}")
-        n_jobs = d.get("n_jobs", 1)
-        if not isinstance(n_jobs, int) or isinstance(n_jobs, bool) or not (n_jobs >= 1 or n_jobs == -1):
-            raise ConfigError("features.n_jobs", f"must be a positive integer or -1 (all cores), got {n_jobs!r}")
-        seed = d.get("seed", 0)
-        if not isinstance(seed, int) or isinstance(seed, bool):
-            raise ConfigError("features.seed", f"must be an integer, got {seed!r}")
-        return cls(tuple(fronts), dict(d.get("orb") or {}), dict(d.get("viso") or {}), n_jobs, seed,
-                   SumLogGrid.from_dict(d.get("sumlog")))
+    def from_dict(cls, d: dict | None, problems: Problems | None = None) -> "FeaturesConfig":
+        r = Section(d, "features", problems)
+        frontends = r.names("frontends", FRONTEND_NAMES, FRONTEND_NAMES, what="front end")
+        blocks = {}
+        for name in ("orb", "viso"):  # a front end's own keys are checked by the front end (make_frontend)
+            block = r.value(name, None)
+            if block is not None and not isinstance(block, dict):
+                r.problem(name, f"must be a mapping, got {block!r}")
+                block = None
+            blocks[name] = dict(block or {})
+        n_jobs = r.value("n_jobs", 1)
+        if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
+            r.problem("n_jobs", f"must be a positive integer or -1 (all cores), got {n_jobs!r}")
+            n_jobs = 1
+        seed = r.integer("seed", 0)
+        sumlog = SumLogGrid.from_dict(r.value("sumlog", None), r.problems)
+        r.done()
+        return cls(frontends, blocks["orb"], blocks["viso"], n_jobs, seed, sumlog)
 
 
 def make_frontend(name: str, params: dict | None = None):

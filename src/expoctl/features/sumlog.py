@@ -25,6 +25,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import ConfigError
 
 RESCALE_MODES = ("range", "minmax")
@@ -138,28 +139,26 @@ class SumLogGrid:
     max_pairs: int = 100
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "SumLogGrid":
-        d = dict(d or {})
-        known = {"alphas", "betas", "rescale", "max_pairs"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"features.sumlog.{k}", f"unknown key (known: {', '.join(sorted(known))})")
-        grid = cls()
-        alphas = d.get("alphas", grid.alphas)
-        betas = d.get("betas", grid.betas)
+    def from_dict(cls, d: dict | None, problems: Problems | None = None) -> "SumLogGrid":
+        r = Section(d, "features.sumlog", problems)
+        alphas = r.value("alphas", cls.alphas)
         if not _is_seq(alphas) or len(alphas) == 0:
-            raise ConfigError("features.sumlog.alphas", f"must be a non-empty list of [α_R, α_G, α_B], got {alphas!r}")
+            r.problem("alphas", f"must be a non-empty list of [α_R, α_G, α_B], got {alphas!r}")
+            alphas = cls.alphas
+        betas = r.value("betas", cls.betas)
         if not _is_seq(betas) or len(betas) == 0:
-            raise ConfigError("features.sumlog.betas", f"must be a non-empty list of numbers, got {betas!r}")
-        rescale = d.get("rescale", grid.rescale)
+            r.problem("betas", f"must be a non-empty list of numbers, got {betas!r}")
+            betas = cls.betas
+        rescale = r.value("rescale", cls.rescale)
+        max_pairs = r.integer("max_pairs", cls.max_pairs, min=1)
         try:
             params = [SumLogParams(a, b, rescale) for a in alphas for b in betas]  # validates every grid point
         except ConfigError as exc:  # name the grid's key (alphas/betas), not the single point's (alpha/beta)
-            key = {"alpha": "alphas", "beta": "betas"}.get(exc.key.rsplit(".", 1)[-1], "rescale")
-            raise ConfigError(f"features.sumlog.{key}", exc.problem) from None
+            r.problem({"alpha": "alphas", "beta": "betas"}.get(exc.key.rsplit(".", 1)[-1], "rescale"), exc.problem)
+            params = []
         if rescale == "range" and any(p.beta <= 0 for p in params):
-            raise ConfigError("features.sumlog.betas", "must all be > 0 with rescale 'range' (log 0 is unbounded)")
-        max_pairs = d.get("max_pairs", grid.max_pairs)
-        if not isinstance(max_pairs, int) or isinstance(max_pairs, bool) or max_pairs < 1:
-            raise ConfigError("features.sumlog.max_pairs", f"must be a positive integer, got {max_pairs!r}")
+            r.problem("betas", "must all be > 0 with rescale 'range' (log 0 is unbounded)")
+        r.done()
+        if not params:  # a bad grid point: reported above, raised by the outermost section
+            return cls()
         return cls(tuple(tuple(float(v) for v in a) for a in alphas), tuple(float(b) for b in betas), rescale, max_pairs)

@@ -15,7 +15,8 @@ import numpy as np
 import pandas as pd
 
 from expoctl.camera import ranges
-from expoctl.errors import ConfigError, InputError
+from expoctl.config_reader import Section
+from expoctl.errors import InputError
 from expoctl.labels.targets import METRICS, index_frames, require_columns, row_error
 
 SPLITS = ("train", "validation", "test")
@@ -33,13 +34,9 @@ class SampleConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping | None, group: str = "samples") -> "SampleConfig":
-        d = dict(d or {})
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"{group}.{unknown[0]}", f"unknown key (known: {', '.join(cls.__dataclass_fields__)})")
-        cfg = cls(**d)
-        if cfg.metric not in METRICS:
-            raise ConfigError(f"{group}.metric", f"must be one of {', '.join(METRICS)}; got {cfg.metric!r}")
+        r = Section(d, group)
+        cfg = cls(r.choice("metric", METRICS, cls.metric))
+        r.done()
         return cfg
 
 

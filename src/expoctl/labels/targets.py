@@ -37,7 +37,9 @@ import numpy as np
 import pandas as pd
 
 from expoctl.camera import ranges
-from expoctl.errors import ConfigError, InputError
+from expoctl.config_reader import Section
+from expoctl.controllers.base import read_latency_frames
+from expoctl.errors import InputError
 
 METRICS = ("feat", "match", "hybrid")
 FRONTENDS = ("orb", "viso")
@@ -71,27 +73,16 @@ class LabelConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping | None, group: str = "labels") -> "LabelConfig":
-        d = dict(d or {})
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"{group}.{unknown[0]}", f"unknown key (known: {', '.join(cls.__dataclass_fields__)})")
-        cfg = cls(**d)
-        if cfg.frontend not in FRONTENDS + (COMBINED_FRONTEND,):
-            raise ConfigError(f"{group}.frontend",
-                              f"must be one of {', '.join(FRONTENDS + (COMBINED_FRONTEND,))}; got {cfg.frontend!r}")
-        if isinstance(cfg.window, bool) or not isinstance(cfg.window, int) or cfg.window < 1:
-            raise ConfigError(f"{group}.window", f"must be an integer ≥ 1; got {cfg.window!r}")
-        lat = cfg.latency_frames
-        if isinstance(lat, bool) or not isinstance(lat, int) or lat < 1:
-            raise ConfigError(f"{group}.latency_frames", f"must be an integer ≥ 1; got {lat!r}")
-        w = cfg.hybrid_feat_weight
-        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= float(w) <= 1.0:
-            raise ConfigError(f"{group}.hybrid_feat_weight", f"must be a number in [0, 1]; got {w!r}")
-        if cfg.hybrid_exposure_average not in EXPOSURE_AVERAGES:
-            raise ConfigError(
-                f"{group}.hybrid_exposure_average",
-                f"must be one of {', '.join(EXPOSURE_AVERAGES)}; got {cfg.hybrid_exposure_average!r}",
-            )
+        r = Section(d, group)
+        cfg = cls(
+            frontend=r.choice("frontend", FRONTENDS + (COMBINED_FRONTEND,), cls.frontend),
+            window=r.integer("window", cls.window, min=1),
+            hybrid_feat_weight=r.number("hybrid_feat_weight", cls.hybrid_feat_weight, min=0.0, max=1.0),
+            hybrid_exposure_average=r.choice("hybrid_exposure_average", EXPOSURE_AVERAGES,
+                                             cls.hybrid_exposure_average),
+            latency_frames=read_latency_frames(r),
+        )
+        r.done()
         return cfg
 
 

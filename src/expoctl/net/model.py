@@ -81,25 +81,27 @@ class ModelConfig:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
     def validate(self, prefix: str = "model") -> None:
+        """Every problem at once (ConfigError)."""
+        problems = []
         if len(self.conv_widths) != len(self.conv_kernels) + 1:
-            raise ConfigError(f"{prefix}.conv_widths", "needs one more entry than conv_kernels (the last conv's kernel is computed)")
+            problems.append(("conv_widths", "needs one more entry than conv_kernels (the last conv's kernel is computed)"))
         if any(w < 1 for w in self.conv_widths + self.fc_widths):
-            raise ConfigError(f"{prefix}.conv_widths", "widths must be ≥ 1")
+            problems.append(("conv_widths", "widths must be ≥ 1"))
         if any(k < 1 for k in self.conv_kernels) or self.pool < 1:
-            raise ConfigError(f"{prefix}.conv_kernels", "kernels and pool must be ≥ 1")
+            problems.append(("conv_kernels", "kernels and pool must be ≥ 1"))
         if self.exposure_scale not in EXPOSURE_SCALES:
-            raise ConfigError(f"{prefix}.exposure_scale", f"must be one of {list(EXPOSURE_SCALES)}, got {self.exposure_scale!r}")
+            problems.append(("exposure_scale", f"must be one of {list(EXPOSURE_SCALES)}, got {self.exposure_scale!r}"))
         if self.output not in OUTPUTS:
-            raise ConfigError(f"{prefix}.output", f"must be one of {list(OUTPUTS)}, got {self.output!r}")
+            problems.append(("output", f"must be one of {list(OUTPUTS)}, got {self.output!r}"))
         if not 0.0 <= self.dropout < 1.0:
-            raise ConfigError(f"{prefix}.dropout", f"must be in [0, 1), got {self.dropout}")
+            problems.append(("dropout", f"must be in [0, 1), got {self.dropout}"))
+        sane = all(k >= 1 for k in self.conv_kernels) and self.pool >= 1  # the map size needs them
         for axis, n in zip(("height", "width"), self.input_size):
-            if final_map_size(n, self.conv_kernels, self.pool) < 1:
-                raise ConfigError(
-                    f"{prefix}.input_size",
-                    f"{axis} {n} too small for kernels {list(self.conv_kernels)} with pool {self.pool} "
-                    f"(minimum {min_input_size(self.conv_kernels, self.pool)})",
-                )
+            if sane and final_map_size(n, self.conv_kernels, self.pool) < 1:
+                problems.append(("input_size", f"{axis} {n} too small for kernels {list(self.conv_kernels)} with "
+                                 f"pool {self.pool} (minimum {min_input_size(self.conv_kernels, self.pool)})"))
+        if problems:
+            raise ConfigError.of([(f"{prefix}.{k}", p) for k, p in problems])
 
 
 def final_map_size(n: int, kernels, pool: int) -> int:

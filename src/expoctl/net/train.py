@@ -113,9 +113,9 @@ class TrainConfig:
             ("max_validation_samples", self.max_validation_samples is None or self.max_validation_samples >= 1,
              "must be ≥ 1 or null"),
         ]
-        for key, ok, problem in checks:
-            if not ok:
-                raise ConfigError(f"{prefix}.{key}", f"{problem}, got {getattr(self, key)}")
+        problems = [(f"{prefix}.{key}", f"{problem}, got {getattr(self, key)}") for key, ok, problem in checks if not ok]
+        if problems:  # every one at once
+            raise ConfigError.of(problems)
 
 
 def weighted_l1(pred: torch.Tensor, target: torch.Tensor, epsilon: float) -> torch.Tensor:

@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from expoctl.errors import ConfigError, InputError
+from expoctl.config_reader import Section
+from expoctl.errors import InputError
 from expoctl.io import atomic_dir, write_parquet
 from expoctl.raw.format import find_sequences, read_image_rgb
 from expoctl.raw.validate import SequenceCheck, check_sequence
@@ -41,25 +42,17 @@ class IngestConfig:
     holdout_test: float = 0.15
 
     @classmethod
-    def from_dict(cls, d: dict) -> "IngestConfig":
-        known = {"image_width", "image_height", "holdout_fractions"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"ingest.{k}", f"unknown key (known: {sorted(known)})")
-        hold = d.get("holdout_fractions", {}) or {}
-        for k in hold:
-            if k not in ("validation", "test"):
-                raise ConfigError(f"ingest.holdout_fractions.{k}", "unknown split (use validation, test)")
-        cfg = cls(int(d.get("image_width", 224)), int(d.get("image_height", 224)),
-                  float(hold.get("validation", 0.15)), float(hold.get("test", 0.15)))
-        for key, v in (("image_width", cfg.image_width), ("image_height", cfg.image_height)):
-            if not 8 <= v <= 4096:
-                raise ConfigError(f"ingest.{key}", f"must be between 8 and 4096 pixels, got {v}")
-        for key, v in (("validation", cfg.holdout_validation), ("test", cfg.holdout_test)):
-            if not 0.0 <= v < 1.0:
-                raise ConfigError(f"ingest.holdout_fractions.{key}", f"must be in [0, 1), got {v}")
+    def from_dict(cls, d: dict, key: str = "ingest") -> "IngestConfig":
+        r = Section(d, key)
+        size = dict(min=8, max=4096, unit="pixels")
+        hold = r.section("holdout_fractions")
+        cfg = cls(r.integer("image_width", cls.image_width, **size), r.integer("image_height", cls.image_height, **size),
+                  hold.number("validation", cls.holdout_validation, min=0.0, below=1.0),
+                  hold.number("test", cls.holdout_test, min=0.0, below=1.0))
         if cfg.holdout_validation + cfg.holdout_test >= 1.0:
-            raise ConfigError("ingest.holdout_fractions", "validation + test must leave some training data (< 1)")
+            hold.problem(None, "validation + test must leave some training data (< 1)")
+        hold.done()
+        r.done()
         return cfg
 
 

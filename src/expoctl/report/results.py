@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from expoctl.errors import ConfigError, InputError
+from expoctl.config_reader import Section
+from expoctl.errors import InputError
 from expoctl.evaluation.aggregate import validate_metrics
 from expoctl.evaluation.config import CONTROLLER_NAMES
 from expoctl.report.figures import image_strips, label, nfm_bars, ordered, tunnel_timeline
@@ -38,19 +39,12 @@ class ReportConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "report") -> "ReportConfig":
-        d = dict(d or {})
-        known = {"strip_split", "strip_portal", "strip_columns"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (known: {', '.join(sorted(known))})")
-        if d.get("strip_split", "test") not in ("validation", "test"):
-            raise ConfigError(f"{key}.strip_split", f"must be validation or test, got {d['strip_split']!r}")
-        if d.get("strip_portal", "exit") not in ("entry", "exit"):
-            raise ConfigError(f"{key}.strip_portal", f"must be entry or exit, got {d['strip_portal']!r}")
-        n = d.get("strip_columns", 6)
-        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 20:
-            raise ConfigError(f"{key}.strip_columns", f"must be an integer in [1, 20], got {n!r}")
-        return cls(d.get("strip_split", "test"), d.get("strip_portal", "exit"), n)
+        r = Section(d, key)
+        cfg = cls(r.choice("strip_split", ("validation", "test"), cls.strip_split),
+                  r.choice("strip_portal", ("entry", "exit"), cls.strip_portal),
+                  r.integer("strip_columns", cls.strip_columns, min=1, max=20))
+        r.done()
+        return cfg
 
 
 def load_eval(reports_dir: str | os.PathLike) -> tuple[dict, pd.DataFrame, pd.DataFrame]:

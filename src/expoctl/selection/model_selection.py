@@ -24,7 +24,8 @@ With `enabled: true` the remaining candidates then drive the selection windows; 
    with the two front ends weighted equally whatever their scales;
 3. on an exact tie, the later iteration (the paper's choice).
 
-Config: `select_model` (conf/select_model/default.yaml), validated by `SelectConfig.from_dict` before any work.
+Config: `select_model` (conf/select_model/default.yaml) as a `SelectConfig`, and the evaluation's `EvaluationInputs`,
+both built once by the stage before any work.
 """
 
 from __future__ import annotations
@@ -41,7 +42,9 @@ import pandas as pd
 
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, EvaluateConfig, SplitPlan, split_plan_from_dict
+from expoctl.config_reader import Problems, Section
+from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, SplitPlan, read_split_plan
+from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.selection.saturation_probe import ProbeConfig
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
@@ -50,9 +53,6 @@ SELECT_LABEL = "select"
 REFERENCES = tuple(c for c in CONTROLLER_NAMES if c not in ("learned", "oracle"))
 #: the one city no stage before evaluate may see (the validation city already gives train its validation split)
 HELD_OUT_CITY = "test"
-
-_PLAN_KEYS = {"first_traversal", "n_traversals", "window", "before_s", "after_s", "windows"}
-_KEYS = _PLAN_KEYS | {"enabled", "city", "reference", "probe"}
 
 
 @dataclass(frozen=True)
@@ -64,30 +64,21 @@ class SelectConfig:
     probe: ProbeConfig = ProbeConfig()
 
     @classmethod
-    def from_dict(cls, d, key: str = "select_model") -> "SelectConfig":
-        if not isinstance(d, dict):
-            raise ConfigError(key, f"missing or not a mapping (got {d!r})")
-        for k in d:
-            if k not in _KEYS:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(_KEYS)})")
-        enabled = d.get("enabled", False)
-        if not isinstance(enabled, bool):
-            raise ConfigError(f"{key}.enabled", f"must be true or false, got {enabled!r}")
-        city = d.get("city", "train")
-        if not isinstance(city, str) or not city:
-            raise ConfigError(f"{key}.city", f"must name a world.cities entry, got {city!r}")
+    def from_dict(cls, d, key: str = "select_model", problems: Problems | None = None) -> "SelectConfig":
+        r = Section(d, key, problems, required=True)
+        enabled = r.boolean("enabled", cls.enabled)
+        city = r.text("city", cls.city)  # a world.cities entry
         if city == HELD_OUT_CITY:
-            raise ConfigError(f"{key}.city", f"{city!r} is the held-out city: selecting on it would let the choice see "
-                              "the city the result is reported on (use train or validation)")
-        reference = d.get("reference", "agae")
-        if reference is not None and reference not in REFERENCES:
-            raise ConfigError(f"{key}.reference", f"must be null or one of {list(REFERENCES)}, got {reference!r}")
-        plan = split_plan_from_dict(SELECT_LABEL, {k: v for k, v in d.items() if k in _PLAN_KEYS}, key)
-        if "first_traversal" not in d:
-            plan = dataclasses.replace(plan, first_traversal=300)
-        probe = ProbeConfig.from_dict(d.get("probe"), f"{key}.probe")
+            r.problem("city", f"{city!r} is the held-out city: selecting on it would let the choice see the city the "
+                      "result is reported on (use train or validation)")
+        reference = r.choice("reference", (None,) + REFERENCES, cls.reference)
+        plan = read_split_plan(SELECT_LABEL, r)
+        if not r.has("first_traversal"):
+            plan = dataclasses.replace(plan, first_traversal=cls.plan.first_traversal)
+        probe = ProbeConfig.from_dict(r.value("probe", None), r.path("probe"), r.problems)
         if probe.city == HELD_OUT_CITY:
-            raise ConfigError(f"{key}.probe.city", f"{probe.city!r} is the held-out city (use train or validation)")
+            r.problem("probe.city", f"{probe.city!r} is the held-out city (use train or validation)")
+        r.done()
         return cls(enabled, city, plan, reference, probe)
 
 
@@ -164,19 +155,18 @@ def choose(candidates: Sequence[Candidate], scored: Sequence[dict]) -> Candidate
 # ---------------------------------------------------------------------------------------------------------- probe
 
 
-def probe_candidates(cfg: dict, candidates: Sequence[Candidate], project_root: str | os.PathLike = ".",
-                     pcfg: ProbeConfig | None = None) -> dict[str, dict]:
+def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], project_root: str | os.PathLike,
+                     pcfg: ProbeConfig) -> dict[str, dict]:
     """The saturation probe's result for each candidate (`SaturationProbe.run`), each network built as evaluate
     builds it (controllers.learned's keys with the candidate's checkpoint)."""
     from expoctl.controllers.registry import make_controller
     from expoctl.selection.saturation_probe import make_probe, probe_all
 
-    pcfg = pcfg or SelectConfig.from_dict(cfg.get("select_model")).probe
     for c in candidates:
         if not Path(c.path).is_file():
             raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
-    section = dict((cfg.get("controllers") or {}).get("learned") or {})
-    probe = make_probe(pcfg, cfg, project_root)
+    section = inputs.controller_params("learned")
+    probe = make_probe(pcfg, inputs, project_root)
     return probe_all(probe, {c.name: (lambda p=c.path: make_controller("learned", {**section, "checkpoint": str(p)}))
                              for c in candidates})
 
@@ -190,19 +180,15 @@ def probe_filter(candidates: Sequence[Candidate], results: dict[str, dict]) -> l
 # ---------------------------------------------------------------------------------------------------------- driving
 
 
-def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str | os.PathLike = ".",
-                 progress: bool = False) -> SelectionResult:
+def select_model(inputs: EvaluationInputs, scfg: SelectConfig, candidates: Sequence[Candidate],
+                 project_root: str | os.PathLike = ".", progress: bool = False) -> SelectionResult:
     """Drive every candidate (and the reference) over the selection windows; score; choose (no files written).
 
     One candidate alone is returned without driving anything (nothing to choose between)."""
     from expoctl.evaluation.runner import RunJob, city_windows, run_jobs, tune_sumlog_params
     from expoctl.evaluation.aggregate import add_section_ids, section_stats
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig
 
-    scfg = SelectConfig.from_dict(cfg.get("select_model"))  # ConfigErrors before any work
-    ecfg = EvaluateConfig.from_dict(cfg.get("evaluate"))
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    RenderConfig.from_world(cfg.get("world"))
+    ecfg, rig = inputs.evaluate, inputs.rig
     if not candidates:
         raise InputError("model selection: no candidate network")
     names = [c.name for c in candidates]
@@ -223,12 +209,12 @@ def select_model(cfg: dict, candidates: Sequence[Candidate], project_root: str |
         if mine & theirs:
             raise ConfigError("select_model.first_traversal", f"traversals {sorted(mine & theirs)} of the "
                               f"{scfg.city} city are also evaluate.splits.{scfg.city}'s: choose disjoint ones")
-    windows = city_windows(cfg, project_root, SELECT_LABEL, scfg.city, scfg.plan, "select_model", rig.fps,
+    windows = city_windows(inputs, project_root, SELECT_LABEL, scfg.city, scfg.plan, "select_model", rig.fps,
                            ecfg.warmup_frames)
-    sumlog = tune_sumlog_params(cfg, project_root, ecfg.sumlog_pairs)
-    jobs = [RunJob(w, "learned", cfg, sumlog, str(c.path), label=c.name) for c in candidates for w in windows]
+    sumlog = tune_sumlog_params(inputs, project_root, ecfg.sumlog_pairs)
+    jobs = [RunJob(w, "learned", inputs, sumlog, str(c.path), label=c.name) for c in candidates for w in windows]
     if scfg.reference is not None:
-        jobs += [RunJob(w, scfg.reference, cfg, sumlog, label=scfg.reference) for w in windows]
+        jobs += [RunJob(w, scfg.reference, inputs, sumlog, label=scfg.reference) for w in windows]
     rows, summaries = [], []
     for job, (r, s, _thumbs) in run_jobs(jobs, ecfg.n_jobs, progress):
         rows.extend({**row, "candidate": job.label} for row in r)  # run_id is already job.run_id (named by label)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,7 +30,12 @@ from expoctl.camera.ranges import exposure_value_ev
 from expoctl.camera.response import SATURATED_DN  # grey level counted as clipped (as evaluate's saturated_frac)
 from expoctl.controllers.agae import split_exposure_first
 from expoctl.controllers.base import Controller, Settings
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import ConfigError, InputError
+
+if TYPE_CHECKING:
+    from expoctl.camera.sensor import SensorConfig
+    from expoctl.evaluation.inputs import EvaluationInputs
 
 AGAE_START = Settings(0.0, 5000.0)  # AG+AE's own start before it settles to the reference level
 
@@ -51,38 +57,26 @@ class ProbeConfig:
     first_frames: int = 10
 
     @classmethod
-    def from_dict(cls, d, key: str) -> "ProbeConfig":
-        if d is None:
-            d = {}
-        if not isinstance(d, dict):
-            raise ConfigError(key, f"must be a mapping, got {d!r}")
-        known = {f for f in cls.__dataclass_fields__}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
-        v = {**{f: getattr(cls, f) for f in known}, **d}
-        if not isinstance(v["enabled"], bool):
-            raise ConfigError(f"{key}.enabled", f"must be true or false, got {v['enabled']!r}")
-        if not isinstance(v["city"], str) or not v["city"]:
-            raise ConfigError(f"{key}.city", f"must name a world.cities entry, got {v['city']!r}")
-        for name, lo in (("traversal", 0), ("seed", 0), ("frames", 2), ("width", 16), ("height", 16),
-                         ("last_frames", 1), ("first_frames", 1)):
-            x = v[name]
-            if isinstance(x, bool) or not isinstance(x, int) or x < lo:
-                raise ConfigError(f"{key}.{name}", f"must be an integer >= {lo}, got {x!r}")
-        for name in ("last_frames", "first_frames"):
-            if v[name] >= v["frames"]:
-                raise ConfigError(f"{key}.{name}", f"must be below frames ({v['frames']}), got {v[name]}")
-        offs = v["offsets_ev"]
-        if (not isinstance(offs, (list, tuple)) or not offs or not all(
-                isinstance(o, (int, float)) and not isinstance(o, bool) and math.isfinite(o) for o in offs)):
-            raise ConfigError(f"{key}.offsets_ev", f"must be a non-empty list of finite EV offsets, got {offs!r}")
-        m = v["max_saturated_fraction"]
-        if isinstance(m, bool) or not isinstance(m, (int, float)) or not 0 < m <= 1:
-            raise ConfigError(f"{key}.max_saturated_fraction", f"must be in (0, 1], got {m!r}")
-        return cls(v["enabled"], v["city"], v["traversal"], v["seed"], v["frames"],
-                   tuple(float(o) for o in offs), v["width"], v["height"], float(m), v["last_frames"],
-                   v["first_frames"])
+    def from_dict(cls, d, key: str, problems: Problems | None = None) -> "ProbeConfig":
+        r = Section(d, key, problems)
+        frames = r.integer("frames", cls.frames, min=2)
+        # the reference level is the mean over the last frames of a start, the verdict over its first ones
+        ends = {name: r.integer(name, getattr(cls, name), min=1, below=frames) for name in ("last_frames",
+                                                                                             "first_frames")}
+        cfg = cls(
+            enabled=r.boolean("enabled", cls.enabled),
+            city=r.text("city", cls.city),  # a world.cities entry (make_probe checks it)
+            traversal=r.integer("traversal", cls.traversal, min=0),
+            seed=r.integer("seed", cls.seed, min=0),
+            frames=frames,
+            offsets_ev=r.numbers("offsets_ev", cls.offsets_ev),
+            width=r.integer("width", cls.width, min=16),
+            height=r.integer("height", cls.height, min=16),
+            max_saturated_fraction=r.number("max_saturated_fraction", cls.max_saturated_fraction, above=0.0, max=1.0),
+            **ends,
+        )
+        r.done()
+        return cfg
 
 
 def _longest_run(mask: np.ndarray) -> tuple[int, int]:
@@ -133,13 +127,13 @@ def _ev(s: Settings) -> float:
 class SaturationProbe:
     """The probe's scene and reference levels, built once and run for any number of controllers."""
 
-    def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor_cfg: dict | None, agae: Controller):
+    def __init__(self, pcfg: ProbeConfig, city, rig, render, sensor: "SensorConfig", agae: Controller):
         from expoctl.sim.closed_loop import RouteScene, make_sensors
 
         self.cfg = pcfg
         self.trajectory = city.traversal(pcfg.traversal, None, rig.fps, pcfg.seed)
         self.scene = RouteScene(city, self.trajectory, rig, render.with_size(pcfg.width, pcfg.height))
-        self.sensor = make_sensors(sensor_cfg, render.with_size(pcfg.width, pcfg.height), 1, 0.0, pcfg.seed)[0][0]
+        self.sensor = make_sensors(sensor, render.with_size(pcfg.width, pcfg.height), 1, 0.0, pcfg.seed)[0][0]
         self.starts = {}
         for name, frame in start_frames(self.trajectory, pcfg.frames).items():
             evs, _ = self._drive(agae, AGAE_START, frame)
@@ -180,23 +174,20 @@ class SaturationProbe:
         return out
 
 
-def make_probe(pcfg: ProbeConfig, cfg: Mapping, project_root) -> SaturationProbe:
-    """The probe for a resolved project config (world, rig, sensor, controllers.agae) and its city."""
+def make_probe(pcfg: ProbeConfig, inputs: "EvaluationInputs", project_root) -> SaturationProbe:
+    """The probe for the typed config the stage built (world, rig, sensor, controllers.agae) and its city."""
     from pathlib import Path
 
     from expoctl.controllers.registry import make_controller
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig
     from expoctl.world import load_city
 
-    world = cfg.get("world") or {}
-    cities = world.get("cities") or {}
-    if pcfg.city not in cities:
-        raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(cities)})")
-    city = load_city(cities[pcfg.city], str(Path(project_root) / world.get("city_dir", "conf/world/cities")))
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    render = RenderConfig.from_world(world)
-    agae = make_controller("agae", (cfg.get("controllers") or {}).get("agae", {}))
-    return SaturationProbe(pcfg, city, rig, render, cfg.get("sensor"), agae)
+    world = inputs.world
+    if pcfg.city not in world.cities:
+        raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(world.cities)})")
+    city_dir = world.city_dir if world.city_dir is not None else "conf/world/cities"
+    city = load_city(world.cities[pcfg.city], str(Path(project_root) / city_dir))
+    agae = make_controller("agae", inputs.controller_params("agae"))
+    return SaturationProbe(pcfg, city, inputs.rig, world.render, inputs.sensor, agae)
 
 
 def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Controller]]) -> dict[str, dict]:

@@ -20,13 +20,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
+from expoctl.config_reader import Problems, Section
 from expoctl.controllers.base import Controller, Settings
-from expoctl.errors import ConfigError
 from expoctl.sim.protocol import PerturbationConfig, perturb
+from expoctl.world.render_config import RenderConfig
+
+if TYPE_CHECKING:
+    from expoctl.camera.sensor import SensorConfig
 
 #: stream id mixed into per-frame sensor seeds (the perturbation uses a different one)
 _SENSOR_STREAM = 0x5E4
@@ -222,49 +226,12 @@ class RigConfig:
     perturbation: PerturbationConfig = PerturbationConfig()
 
     @classmethod
-    def from_dict(cls, d: dict | None, key: str = "rig") -> "RigConfig":
-        d = _mapping(d, key)
-        reject_unknown_keys(d, {"baseline_m", "fps", "perturbation"}, key)
-        kw: dict = {k: _positive(d[k], f"{key}.{k}") for k in ("baseline_m", "fps") if k in d}
-        kw["perturbation"] = PerturbationConfig.from_dict(d.get("perturbation"), f"{key}.perturbation")
-        return cls(**kw)
-
-
-@dataclass(frozen=True)
-class RenderConfig:
-    """What the renderer needs (config `world.render`): image size, field of view, and options passed through to
-    `expoctl.world.make_renderer` (glare_fraction, mip_bias, tmax_m, blur, max_subframes; it validates them)."""
-
-    width: int = 640
-    height: int = 480
-    hfov_deg: float = 59.1  # the paper's 6.23 mm lens on the IMX265 (7.07 mm wide): 2·atan(3.535 / 6.23)
-    options: tuple[tuple[str, Any], ...] = ()
-
-    @classmethod
-    def from_world(cls, world: dict | None, key: str = "world.render") -> "RenderConfig":
-        d = _mapping((world or {}).get("render"), key)
-        kw: dict = {}
-        for k in ("width", "height"):
-            if k in d:
-                v = d[k]
-                if isinstance(v, bool) or not isinstance(v, int) or not 16 <= v <= 8192:
-                    raise ConfigError(f"{key}.{k}", f"must be an integer number of pixels in [16, 8192], got {v!r}")
-                kw[k] = v
-        if "hfov_deg" in d:
-            kw["hfov_deg"] = _positive(d["hfov_deg"], f"{key}.hfov_deg")
-            if kw["hfov_deg"] >= 170.0:
-                raise ConfigError(f"{key}.hfov_deg", f"a pinhole camera needs less than 170°, got {kw['hfov_deg']}")
-        opts = tuple(sorted((k, v) for k, v in d.items() if k not in ("width", "height", "hfov_deg")))
-        return cls(options=opts, **kw)
-
-    def with_size(self, width: int | None, height: int | None) -> "RenderConfig":
-        return RenderConfig(width or self.width, height or self.height, self.hfov_deg, self.options)
-
-    def make_renderer(self, city):
-        from expoctl.world import make_renderer
-
-        cfg = dict(self.options, width=self.width, height=self.height, hfov_deg=self.hfov_deg)
-        return make_renderer(city, cfg)  # validates the options (ConfigError world.render.<key>)
+    def from_dict(cls, d: Any, key: str = "rig", problems: Problems | None = None) -> "RigConfig":
+        r = Section(d, key, problems)
+        baseline, fps = r.number("baseline_m", cls.baseline_m, above=0), r.number("fps", cls.fps, above=0)
+        perturbation = PerturbationConfig.from_dict(r.value("perturbation", None), r.path("perturbation"), r.problems)
+        r.done()
+        return cls(baseline, fps, perturbation)
 
 
 def rig_metadata(rig: RigConfig, render: RenderConfig) -> dict:
@@ -287,7 +254,9 @@ class RouteScene:
 
     def __init__(self, city, trajectory, rig: RigConfig, render: RenderConfig):
         self.trajectory = trajectory
-        self.renderer = render.make_renderer(city)
+        from expoctl.world.backends import make_renderer
+
+        self.renderer = make_renderer(city, render)
         self._offset_m = {1: 0.0, 2: rig.baseline_m}
 
     def luminance(self, frame_index: int, exposure_us: float, camera: int) -> np.ndarray:
@@ -297,12 +266,12 @@ class RouteScene:
         return int(self.trajectory.timestamps_ns[frame_index])
 
 
-def make_sensors(sensor_cfg: dict | None, render: RenderConfig, n_cameras: int, randomisation: float, seed: int):
-    """`n_cameras` identical sensors — one parameter set, randomised by ±`randomisation` from `seed` (the rig's two
-    cameras are the same model) but each camera its own fixed-pattern noise — and the set as a dict for sequence.yaml."""
-    from expoctl.camera.sensor import Sensor, SensorConfig
+def make_sensors(base: "SensorConfig", render: RenderConfig, n_cameras: int, randomisation: float, seed: int):
+    """`n_cameras` identical sensors — one parameter set (`base`, config group `sensor`), randomised by
+    ±`randomisation` from `seed` (the rig's two cameras are the same model) but each camera its own fixed-pattern
+    noise — and the set as a dict for sequence.yaml."""
+    from expoctl.camera.sensor import Sensor
 
-    base = SensorConfig.from_dict(sensor_cfg or {})
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), _SENSOR_STREAM, 0xC0F]))
     config = base.randomised(rng, randomisation) if randomisation > 0 else base
     sensors = [Sensor(config, render.height, render.width, seed=_sensor_unit_seed(seed, c)) for c in range(1, n_cameras + 1)]
@@ -329,24 +298,3 @@ def _config_dict(config) -> dict:
     import dataclasses
 
     return dataclasses.asdict(config)
-
-
-def _mapping(d, key: str) -> dict:
-    if d is None:
-        return {}
-    if not isinstance(d, dict):
-        raise ConfigError(key, f"must be a mapping, got {d!r}")
-    return d
-
-
-def reject_unknown_keys(d: dict, known: set[str], key: str) -> None:
-    """ConfigError naming `key.<k>` for the first key of `d` not in `known`."""
-    for k in d:
-        if k not in known:
-            raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
-
-
-def _positive(v, key: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise ConfigError(key, f"must be a positive number, got {v!r}")
-    return float(v)

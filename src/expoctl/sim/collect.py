@@ -13,8 +13,8 @@ Output: `<out_dir>/<split>/<sequence>/` in the docs/raw_format.md format, writte
 sequence). The whole `out_dir` is also built beside the target and swapped in only when every sequence succeeded,
 so a failed or interrupted run leaves the previous data untouched and no stale sequences survive a config change.
 
-Config used (whole resolved config): `collect`, `rig`, `sensor`, `world` (cities, city_dir, render), `seed`,
-`controllers.<reference_controller>`.
+Config used: `CollectInputs`, built once by the collect stage from the resolved config's `collect`, `rig`, `sensor`,
+`world` (cities, city_dir, render), `seed` and `controllers.<reference_controller>`.
 """
 
 from __future__ import annotations
@@ -31,20 +31,14 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, SENSOR_EXPOSURE_US_MIN
+from expoctl.camera.sensor import SensorConfig
+from expoctl.config_reader import Problems, Section, read_seed
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
 from expoctl.host import single_threaded_children
-from expoctl.sim.closed_loop import (
-    RenderConfig,
-    RigConfig,
-    RouteScene,
-    clip_sections,
-    make_sensors,
-    reject_unknown_keys,
-    rig_metadata,
-    run_closed_loop,
-)
 from expoctl.raw.format import SequenceWriter
+from expoctl.sim.closed_loop import RigConfig, RouteScene, clip_sections, make_sensors, rig_metadata, run_closed_loop
+from expoctl.world.city import WorldConfig
 
 SPLITS = ("train", "validation", "test")
 
@@ -72,31 +66,46 @@ class CollectConfig:
     splits: dict[str, SplitConfig]
 
     @classmethod
-    def from_dict(cls, d: Any, key: str = "collect") -> "CollectConfig":
-        d = _mapping(d, key)
-        known = {"reference_controller", "initial_gain_db", "initial_exposure_us", "warmup_frames",
-                 "sensor_randomisation", "n_jobs", "splits"}
-        _no_unknown(d, known, key)
-        _require_keys(d, known, key)
-        name = d["reference_controller"]
-        if not isinstance(name, str) or not name:
-            raise ConfigError(f"{key}.reference_controller", f"must be a controller name, got {name!r}")
-        gain = _num(d, "initial_gain_db", key)
-        if not GAIN_DB_MIN <= gain <= GAIN_DB_MAX:
-            raise ConfigError(f"{key}.initial_gain_db", f"must be in [{GAIN_DB_MIN}, {GAIN_DB_MAX}] dB, got {gain}")
-        exposure = _num(d, "initial_exposure_us", key)
-        if not SENSOR_EXPOSURE_US_MIN <= exposure <= EXPOSURE_US_MAX:
-            raise ConfigError(f"{key}.initial_exposure_us",
-                              f"must be in [{SENSOR_EXPOSURE_US_MIN}, {EXPOSURE_US_MAX}] µs, got {exposure}")
-        warmup = _int(d, "warmup_frames", key, 0)
-        amp = _num(d, "sensor_randomisation", key)
-        if not 0.0 <= amp <= 0.5:
-            raise ConfigError(f"{key}.sensor_randomisation", f"must be a fraction in [0, 0.5] (spec: 0.1–0.2), got {amp}")
-        n_jobs = _int(d, "n_jobs", key, 1)
-        splits_d = _mapping(d["splits"], f"{key}.splits")
-        _no_unknown(splits_d, set(SPLITS), f"{key}.splits")
-        splits = {s: _split_from_dict(s, splits_d.get(s), f"{key}.splits.{s}") for s in SPLITS}
-        return cls(name, gain, exposure, warmup, amp, n_jobs, splits)
+    def from_dict(cls, d: Any, key: str = "collect", problems: Problems | None = None) -> "CollectConfig":
+        r = Section(d, key, problems, required=True)
+        cfg = cls(
+            reference_controller=r.text("reference_controller"),
+            initial_gain_db=r.number("initial_gain_db", min=GAIN_DB_MIN, max=GAIN_DB_MAX, unit="dB"),
+            initial_exposure_us=r.number("initial_exposure_us", min=SENSOR_EXPOSURE_US_MIN, max=EXPOSURE_US_MAX,
+                                         unit="µs"),
+            warmup_frames=r.integer("warmup_frames", min=0),
+            sensor_randomisation=r.number("sensor_randomisation", min=0.0, max=0.5),  # spec: 0.1–0.2
+            n_jobs=r.integer("n_jobs", min=1),
+            splits=_splits(r.section("splits", required=True)),
+        )
+        r.done()
+        return cfg
+
+
+@dataclass(frozen=True)
+class CollectInputs:
+    """Everything `collect` reads from the resolved config, checked and typed once (by the collect stage): the
+    `collect`, `world`, `rig` and `sensor` groups, `seed`, and the reference controller's `controllers.<name>`."""
+
+    collect: CollectConfig
+    seed: int
+    world: WorldConfig
+    rig: RigConfig
+    sensor: SensorConfig
+    reference_params: dict  # controllers.<collect.reference_controller>, as given (checked by its factory)
+
+    @classmethod
+    def from_resolved(cls, cfg: dict[str, Any]) -> "CollectInputs":
+        """Build from the resolved config; every problem of every group is reported at once (ConfigError)."""
+        problems = Problems()
+        top = Section(cfg, "", problems)
+        ccfg = CollectConfig.from_dict(top.value("collect", None), "collect", problems)
+        inputs = cls(ccfg, read_seed(top), WorldConfig.from_dict(top.value("world", None), "world", problems),
+                     RigConfig.from_dict(top.value("rig", None), "rig", problems),
+                     SensorConfig.from_dict(top.value("sensor", None), "sensor", problems),
+                     controller_params(top.section("controllers"), ccfg.reference_controller))
+        problems.raise_if_any()
+        return inputs
 
 
 @dataclass(frozen=True)
@@ -122,23 +131,13 @@ def derive_seed(*parts: int | str) -> int:
     return (hi >> 1) << 32 | lo
 
 
-def plan_sequences(cfg: dict[str, Any], project_root: str | os.PathLike = ".") -> list[SequenceJob]:
+def plan_sequences(inputs: CollectInputs, project_root: str | os.PathLike = ".") -> list[SequenceJob]:
     """The sequences `collect` will write, in order (no rendering). Relative `world.city_dir` is under `project_root`."""
     from expoctl.world.cities import resolve_city_name
 
-    ccfg = CollectConfig.from_dict(cfg.get("collect"))
-    base_seed = config_seed(cfg)
-    world = cfg.get("world") or {}
-    if not isinstance(world, dict):
-        raise ConfigError("world", f"must be a mapping, got {world!r}")
-    city_dir = world.get("city_dir")
-    if city_dir is not None:
-        if not isinstance(city_dir, str):
-            raise ConfigError("world.city_dir", f"must be a directory path or null, got {city_dir!r}")
-        city_dir = str((Path(project_root) / city_dir).resolve())
-    cities = world.get("cities") or {}
-    if not isinstance(cities, dict):
-        raise ConfigError("world.cities", f"must map split → city, got {cities!r}")
+    ccfg, base_seed = inputs.collect, inputs.seed
+    world = inputs.world.under(project_root)
+    city_dir, cities = world.city_dir, world.cities
     jobs: list[SequenceJob] = []
     for split in SPLITS:
         scfg = ccfg.splits[split]
@@ -165,27 +164,21 @@ def plan_sequences(cfg: dict[str, Any], project_root: str | os.PathLike = ".") -
     return jobs
 
 
-def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool | Callable[[str], None] = True,
+def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | Callable[[str], None] = True,
             project_root: str | os.PathLike = ".") -> list[dict[str, Any]]:
     """Render every planned sequence into `out_dir/<split>/<sequence>/`; return one summary dict per sequence.
     `progress`: True = a tqdm bar, a callable = one line per finished sequence (e.g. a logger), False = quiet."""
     from expoctl.controllers.registry import make_controller
     from expoctl.io import atomic_dir
 
-    from expoctl.camera.sensor import SensorConfig
-
-    # validate everything before any work: config groups, the reference controller's params, city names
-    ccfg = CollectConfig.from_dict(cfg.get("collect"))
-    RigConfig.from_dict(cfg.get("rig"))
-    RenderConfig.from_world(cfg.get("world"))
-    SensorConfig.from_dict(cfg.get("sensor") or {})
-    make_controller(ccfg.reference_controller, _reference_params(cfg, ccfg))
-    jobs = plan_sequences(cfg, project_root)
+    # check before any work what the config groups could not: the reference controller's params, the city names
+    make_controller(inputs.collect.reference_controller, inputs.reference_params)
+    jobs = plan_sequences(inputs, project_root)
     out_dir = Path(out_dir)
     summaries: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     with atomic_dir(out_dir) as tmp_root:
-        for summary in _run_jobs(cfg, jobs, tmp_root, ccfg.n_jobs, progress is True):
+        for summary in _run_jobs(inputs, jobs, tmp_root, inputs.collect.n_jobs, progress is True):
             summaries.append(summary)
             if callable(progress):
                 progress(f"{len(summaries)}/{len(jobs)} {summary['sequence']}: {summary['n_frames']} frame pairs "
@@ -194,19 +187,17 @@ def collect(cfg: dict[str, Any], out_dir: str | os.PathLike, progress: bool | Ca
     return sorted(summaries, key=lambda s: order[s["sequence"]])
 
 
-def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathLike) -> dict[str, Any]:
+def collect_sequence(inputs: CollectInputs, job: SequenceJob, root: str | os.PathLike) -> dict[str, Any]:
     """Render one sequence into `root/<split>/<name>/` and return its summary (runs in a worker process)."""
     from expoctl.controllers.registry import make_controller
     from expoctl.world import load_city_cached
 
-    ccfg = CollectConfig.from_dict(cfg.get("collect"))
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    render = RenderConfig.from_world(cfg.get("world"))
+    ccfg, rig, render = inputs.collect, inputs.rig, inputs.world.render
     city = load_city_cached(job.city, job.city_dir)
     traj = city.traversal(job.traversal, job.traversal_frames, rig.fps, job.traversal_seed)
     scene = RouteScene(city, traj, rig, render)
-    sensors, sensor_log = make_sensors(cfg.get("sensor"), render, 2, ccfg.sensor_randomisation, job.seed)
-    controller = make_controller(ccfg.reference_controller, _reference_params(cfg, ccfg))
+    sensors, sensor_log = make_sensors(inputs.sensor, render, 2, ccfg.sensor_randomisation, job.seed)
+    controller = make_controller(ccfg.reference_controller, inputs.reference_params)
     n_total = len(traj.timestamps_ns)
     first = job.warmup_frames
     if n_total - first < 2:
@@ -221,7 +212,7 @@ def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathL
         "split": job.split,
         "traversal": {"index": job.traversal, "seed": job.traversal_seed, "first_recorded_frame": first,
                       "speed_mps": float(traj.speed_mps)},
-        "reference_controller": {"name": ccfg.reference_controller, "params": _reference_params(cfg, ccfg)},
+        "reference_controller": {"name": ccfg.reference_controller, "params": inputs.reference_params},
         "seed": job.seed,
         "sections": clip_sections(traj.sections, first, n_total),
         "initial_settings": {"gain_db": ccfg.initial_gain_db, "exposure_us": ccfg.initial_exposure_us},
@@ -254,82 +245,47 @@ def collect_sequence(cfg: dict[str, Any], job: SequenceJob, root: str | os.PathL
 # --- internals ------------------------------------------------------------------------------------------------------
 
 
-def _split_from_dict(name: str, d: Any, key: str) -> SplitConfig:
-    if d is None:  # a split left out collects nothing
-        return SplitConfig(name=name, n_sequences=0)
-    d = _mapping(d, key)
-    _no_unknown(d, {"first_traversal", "n_sequences", "frames"}, key)
-    _require_keys(d, {"n_sequences", "frames"}, key)
-    return SplitConfig(
-        name=name,
-        first_traversal=_int(d, "first_traversal", key, 0) if "first_traversal" in d else 0,
-        n_sequences=_int(d, "n_sequences", key, 0),
-        frames=None if d["frames"] is None else _int(d, "frames", key, 2),
-    )
+def _splits(r: Section) -> dict[str, SplitConfig]:
+    """`collect.splits`: every split's SplitConfig (a split left out collects nothing)."""
+    out = {}
+    for name in SPLITS:
+        if not r.has(name) or r.value(name) is None:
+            out[name] = SplitConfig(name=name, n_sequences=0)
+            continue
+        sr = r.section(name)
+        out[name] = SplitConfig(name=name, first_traversal=sr.integer("first_traversal", 0, min=0),
+                                n_sequences=sr.integer("n_sequences", min=0),
+                                frames=sr.integer("frames", min=2, nullable=True))
+        sr.done()
+    r.done()
+    return out
 
 
-def _mapping(d: Any, key: str) -> dict:
-    if not isinstance(d, dict):
-        raise ConfigError(key, f"missing or not a mapping (got {d!r})")
-    return d
-
-
-# the rig config's unknown-key check, shared rather than written twice
-_no_unknown = reject_unknown_keys
-
-
-def _require_keys(d: dict, needed: set[str], key: str) -> None:
-    for k in sorted(needed):
-        if k not in d:
-            raise ConfigError(f"{key}.{k}", "missing")
-
-
-def _num(d: dict, k: str, key: str) -> float:
-    v = d[k]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-        raise ConfigError(f"{key}.{k}", f"must be a finite number, got {v!r}")
-    return float(v)
-
-
-def _int(d: dict, k: str, key: str, minimum: int) -> int:
-    v = d[k]
-    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise ConfigError(f"{key}.{k}", f"must be an integer >= {minimum}, got {v!r}")
-    return v
-
-
-def config_seed(cfg: dict[str, Any]) -> int:
-    """The run's base seed, config key `seed` (a non-negative integer; default 0)."""
-    seed = cfg.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError("seed", f"must be a non-negative integer, got {seed!r}")
-    return seed
-
-
-def _reference_params(cfg: dict[str, Any], ccfg: CollectConfig) -> dict:
-    """The reference controller's config section: controllers.<name> (shared with evaluation), or {}."""
-    section = (cfg.get("controllers") or {}).get(ccfg.reference_controller)
-    if section is None:
+def controller_params(controllers: Section, name: str) -> dict:
+    """`controllers.<name>` as given (a mapping; {} when absent): the controller's factory checks its keys."""
+    params = controllers.value(name, None)
+    if params is None:
         return {}
-    if not isinstance(section, dict):
-        raise ConfigError(f"controllers.{ccfg.reference_controller}", f"must be a mapping, got {section!r}")
-    return section
+    if not isinstance(params, dict):
+        controllers.problem(name, f"must be a mapping, got {params!r}")
+        return {}
+    return dict(params)
 
 
-def _run_jobs(cfg: dict, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool) -> Iterator[dict]:
+def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool) -> Iterator[dict]:
     from tqdm import tqdm
 
     bar = tqdm(total=len(jobs), desc="collect", unit="seq", disable=not progress)
     try:
         if n_jobs <= 1 or len(jobs) <= 1:
             for job in jobs:
-                yield collect_sequence(cfg, job, root)
+                yield collect_sequence(inputs, job, root)
                 bar.update()
             return
         # spawn (not fork): workers may load torch (learned reference controller), which is not fork-safe;
         # one BLAS/torch thread per worker so n_jobs processes do not oversubscribe the cores
         with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(collect_sequence, cfg, job, root) for job in jobs]
+            futures = [pool.submit(collect_sequence, inputs, job, root) for job in jobs]
             try:
                 for fut in as_completed(futures):
                     yield fut.result()

@@ -31,13 +31,13 @@ runs, warm-up included) and advances by one per `update` after `reset`.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.config_reader import Section
 from expoctl.controllers.base import Controller, Settings
 from expoctl.errors import ConfigError
 
@@ -60,33 +60,19 @@ class OracleParams:
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "controllers.oracle") -> "OracleParams":
-        d = dict(d or {})
-        known = {"exposures_us", "gains_db", "match_width", "match_nfeatures", "warmup_frames", "objective",
-                 "hybrid_feat_weight"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (known: {', '.join(sorted(known))})")
-        kw: dict = {}
-        if "exposures_us" in d:
-            kw["exposures_us"] = _numbers(d["exposures_us"], f"{key}.exposures_us", EXPOSURE_US_MIN, EXPOSURE_US_MAX, 1)
-        if "gains_db" in d:
-            kw["gains_db"] = _numbers(d["gains_db"], f"{key}.gains_db", GAIN_DB_MIN, GAIN_DB_MAX, 0)
-        for name, lo in (("match_width", 32), ("match_nfeatures", 10), ("warmup_frames", 0)):
-            if name in d:
-                v = d[name]
-                if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                    raise ConfigError(f"{key}.{name}", f"must be an integer >= {lo}, got {v!r}")
-                kw[name] = v
-        if "objective" in d:
-            if d["objective"] not in OBJECTIVES:
-                raise ConfigError(f"{key}.objective", f"must be one of {OBJECTIVES}, got {d['objective']!r}")
-            kw["objective"] = d["objective"]
-        if "hybrid_feat_weight" in d:
-            w = d["hybrid_feat_weight"]
-            if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
-                raise ConfigError(f"{key}.hybrid_feat_weight", f"must be a number in [0, 1], got {w!r}")
-            kw["hybrid_feat_weight"] = float(w)
-        return cls(**kw)
+        r = Section(d, key)
+        cfg = cls(
+            exposures_us=r.numbers("exposures_us", cls.exposures_us, min=EXPOSURE_US_MIN, max=EXPOSURE_US_MAX,
+                                   unit="µs"),
+            gains_db=r.numbers("gains_db", cls.gains_db, min=GAIN_DB_MIN, max=GAIN_DB_MAX, unit="dB", empty=True),
+            match_width=r.integer("match_width", cls.match_width, min=32),
+            match_nfeatures=r.integer("match_nfeatures", cls.match_nfeatures, min=10),
+            warmup_frames=r.integer("warmup_frames", cls.warmup_frames, min=0),
+            objective=r.choice("objective", OBJECTIVES, cls.objective),
+            hybrid_feat_weight=r.number("hybrid_feat_weight", cls.hybrid_feat_weight, min=0.0, max=1.0),
+        )
+        r.done()
+        return cfg
 
     def candidates(self) -> list[Settings]:
         """The ladder: each exposure at 0 dB, then each gain at the longest exposure (duplicates dropped)."""
@@ -99,17 +85,6 @@ class OracleParams:
                 seen.add((s.gain_db, s.exposure_us))
                 uniq.append(s)
         return uniq
-
-
-def _numbers(v, key: str, lo: float, hi: float, min_len: int) -> tuple[float, ...]:
-    if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) < min_len:
-        raise ConfigError(key, f"must be a list of at least {min_len} numbers, got {v!r}")
-    out = []
-    for x in v:
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or not lo <= x <= hi:
-            raise ConfigError(key, f"every value must be a number in [{lo}, {hi}], got {x!r}")
-        out.append(float(x))
-    return tuple(out)
 
 
 class CachedScene:

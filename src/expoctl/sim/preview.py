@@ -56,9 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import yaml
 
+    from expoctl.camera.sensor import SensorConfig
     from expoctl.controllers.registry import make_controller
-    from expoctl.sim.closed_loop import RenderConfig, RigConfig, RouteScene, make_sensors, run_closed_loop
-    from expoctl.world import load_city
+    from expoctl.config_reader import Problems
+    from expoctl.sim.closed_loop import RigConfig, RouteScene, make_sensors, run_closed_loop
+    from expoctl.world import WorldConfig, load_city
 
     cfg: dict[str, Any] = {}
     if args.config is not None:
@@ -67,10 +69,13 @@ def run(args: argparse.Namespace) -> int:
         cfg = yaml.safe_load(args.config.read_text()) or {}
         if not isinstance(cfg, dict):
             raise InputError(f"{args.config}: not a YAML mapping")
-    rig = RigConfig.from_dict(cfg.get("rig"))
-    world = cfg.get("world") or {}
-    render = RenderConfig.from_world(world)
-    if "render" not in world:  # no config: a quick look at 320×240
+    problems = Problems()  # every config problem at once
+    rig = RigConfig.from_dict(cfg.get("rig"), "rig", problems)
+    world = WorldConfig.from_dict(cfg.get("world"), "world", problems)
+    sensor = SensorConfig.from_dict(cfg.get("sensor"), "sensor", problems)
+    problems.raise_if_any()
+    render = world.render
+    if "render" not in (cfg.get("world") or {}):  # no config: a quick look at 320×240
         render = render.with_size(320, 240)
     render = render.with_size(args.width, args.height)
     if render.width < 16 or render.height < 16:
@@ -81,15 +86,14 @@ def run(args: argparse.Namespace) -> int:
     if args.start < 0:
         raise InputError(f"--start must be >= 0, got {args.start}")
 
-    city_dir = world.get("city_dir")
-    city = load_city(_city_spec(args.city), city_dir)
+    city = load_city(_city_spec(args.city), world.city_dir)
     n_total = None if args.frames is None else args.start + args.frames
     traj = city.traversal(args.traversal, n_total, rig.fps, args.seed)
     n_total = len(traj.timestamps_ns)
     if args.start >= n_total:
         raise InputError(f"--start {args.start} is past the route's last frame ({n_total - 1})")
     controller = make_controller(args.controller, (cfg.get("controllers") or {}).get(args.controller))
-    sensors, _ = make_sensors(cfg.get("sensor"), render, 1, 0.0, args.seed)
+    sensors, _ = make_sensors(sensor, render, 1, 0.0, args.seed)
     kinds = _frame_kinds(traj.sections, n_total)
     loop = run_closed_loop(RouteScene(city, traj, rig, render), sensors, controller,
                            Settings(args.initial_gain_db, args.initial_exposure_us), range(0, n_total), args.seed)

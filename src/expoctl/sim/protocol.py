@@ -33,9 +33,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from expoctl.camera.ranges import EXPOSURE_US_MAX, SENSOR_EXPOSURE_US_MIN
+from expoctl.camera.ranges import EXPOSURE_US_MAX, GAIN_DB_MAX, SENSOR_EXPOSURE_US_MIN
+from expoctl.config_reader import Problems, Section
 from expoctl.controllers.base import Settings
-from expoctl.errors import ConfigError
 
 #: sign of (gain, exposure) change per frame index modulo 4: ++, +-, -+, -- (all four quadrants, one per frame)
 QUADRANT_SIGNS: tuple[tuple[int, int], ...] = ((+1, +1), (+1, -1), (-1, +1), (-1, -1))
@@ -58,49 +58,23 @@ class PerturbationConfig:
     excursion_frames: int = 6  # block length
 
     @classmethod
-    def from_dict(cls, d: dict | None, key: str = "rig.perturbation") -> "PerturbationConfig":
-        d = dict(d or {})
-        known = {"max_fraction", "zero_gain_threshold_db", "zero_gain_add_db", "zero_gain_add_in_down_quadrants",
-                 "excursion_probability", "excursion_ev", "excursion_frames"}
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{key}.{k}", f"unknown key (expected one of {sorted(known)})")
-        kw: dict = {}
-        for name in ("max_fraction", "zero_gain_threshold_db", "excursion_probability"):
-            if name in d:
-                kw[name] = _number(d[name], f"{key}.{name}")
-        for name, unit in (("zero_gain_add_db", "db"), ("excursion_ev", "ev")):
-            if name in d:
-                kw[name] = _pair(d[name], f"{key}.{name}", unit)
-        if "zero_gain_add_in_down_quadrants" in d:
-            v = d["zero_gain_add_in_down_quadrants"]
-            if not isinstance(v, bool):
-                raise ConfigError(f"{key}.zero_gain_add_in_down_quadrants", f"expected true/false, got {v!r}")
-            kw["zero_gain_add_in_down_quadrants"] = v
-        if "excursion_frames" in d:
-            v = d["excursion_frames"]
-            if isinstance(v, bool) or not isinstance(v, int):
-                raise ConfigError(f"{key}.excursion_frames", f"expected an integer number of frames, got {v!r}")
-            kw["excursion_frames"] = v
-        out = cls(**kw)
-        out.validate(key)
-        return out
-
-    def validate(self, key: str = "rig.perturbation") -> None:
-        if not 0.0 <= self.max_fraction < 1.0:
-            raise ConfigError(f"{key}.max_fraction", f"must be in [0, 1) (paper: 0.5), got {self.max_fraction}")
-        if not 0.0 <= self.zero_gain_threshold_db <= 30.0:
-            raise ConfigError(f"{key}.zero_gain_threshold_db", f"must be in [0, 30] dB, got {self.zero_gain_threshold_db}")
-        lo, hi = self.zero_gain_add_db
-        if not 0.0 <= lo <= hi <= 30.0:
-            raise ConfigError(f"{key}.zero_gain_add_db", f"need 0 <= low <= high <= 30 dB, got [{lo}, {hi}]")
-        if not 0.0 <= self.excursion_probability <= 1.0:
-            raise ConfigError(f"{key}.excursion_probability", f"must be in [0, 1], got {self.excursion_probability}")
-        lo, hi = self.excursion_ev
-        if not 0.0 < lo <= hi <= 15.0:
-            raise ConfigError(f"{key}.excursion_ev", f"need 0 < low <= high <= 15 EV, got [{lo}, {hi}]")
-        if self.excursion_frames < 1:
-            raise ConfigError(f"{key}.excursion_frames", f"must be >= 1, got {self.excursion_frames}")
+    def from_dict(cls, d: dict | None, key: str = "rig.perturbation",
+                  problems: Problems | None = None) -> "PerturbationConfig":
+        r = Section(d, key, problems)
+        cfg = cls(
+            max_fraction=r.number("max_fraction", cls.max_fraction, min=0.0, below=1.0),  # paper: 0.5
+            zero_gain_threshold_db=r.number("zero_gain_threshold_db", cls.zero_gain_threshold_db, min=0.0,
+                                            max=GAIN_DB_MAX, unit="dB"),
+            zero_gain_add_db=r.pair("zero_gain_add_db", cls.zero_gain_add_db, min=0.0, max=GAIN_DB_MAX, unit="dB"),
+            zero_gain_add_in_down_quadrants=r.boolean("zero_gain_add_in_down_quadrants",
+                                                      cls.zero_gain_add_in_down_quadrants),
+            excursion_probability=r.number("excursion_probability", cls.excursion_probability, min=0.0, max=1.0),
+            # 15 EV: the whole exposure × gain range of the camera is about 14 EV
+            excursion_ev=r.pair("excursion_ev", cls.excursion_ev, above=0.0, max=15.0, unit="EV"),
+            excursion_frames=r.integer("excursion_frames", cls.excursion_frames, min=1),
+        )
+        r.done()
+        return cfg
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -157,15 +131,3 @@ def perturb(reference: Settings, frame_index: int, seed: int, cfg: PerturbationC
     else:
         gain_db = reference.gain_db * (1.0 + gain_sign * cfg.max_fraction * u_gain)
     return Settings(float(gain_db), float(exposure_us)).clamped()
-
-
-def _pair(v, key: str, unit: str) -> tuple[float, float]:
-    if not isinstance(v, (list, tuple)) or len(v) != 2:
-        raise ConfigError(key, f"expected [low_{unit}, high_{unit}], got {v!r}")
-    return _number(v[0], key), _number(v[1], key)
-
-
-def _number(v, key: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ConfigError(key, f"expected a number, got {v!r}")
-    return float(v)

@@ -10,12 +10,12 @@ Public API:
 - load_city_cached(spec, city_dir) -> City (one per spec per process); resolve_city_name(spec, city_dir, key) -> str
 """
 
-from expoctl.world.city import (City, Conditions, Trajectory, load_city, load_city_cached, load_world_city,
+from expoctl.world.city import (City, Conditions, Trajectory, WorldConfig, load_city, load_city_cached, load_world_city,
                                 validate_world_config)
 from expoctl.world.cities import deep_merge, resolve_city_name
-from expoctl.world.render_config import intrinsics, validate_render_config
+from expoctl.world.render_config import RenderConfig, intrinsics
 from expoctl.world.renderer import Renderer
 from expoctl.world.backends import make_renderer
 
 __all__ = ["City", "Conditions", "Trajectory", "Renderer", "deep_merge", "intrinsics", "load_city", "load_city_cached",
-           "load_world_city", "make_renderer", "resolve_city_name", "validate_render_config", "validate_world_config"]
+           "load_world_city", "make_renderer", "resolve_city_name", "RenderConfig", "validate_world_config", "WorldConfig"]

@@ -6,15 +6,15 @@ from __future__ import annotations
 
 from expoctl.world.city import City, Conditions
 from expoctl.world.gl_renderer import GLRenderer
-from expoctl.world.render_config import validate_render_config
+from expoctl.world.render_config import RenderConfig
 from expoctl.world.renderer import Renderer
 
 
-def make_renderer(city: City, render_cfg: dict, conditions: Conditions | None = None) -> Renderer:
-    """Build from the `world.render` config group (keys as in conf/world/default.yaml); unknown keys are errors.
-    backend 'egl' returns a gl_renderer.GLRenderer (ConfigError world.render.backend if no EGL context)."""
-    validate_render_config(render_cfg)
-    cfg = dict(render_cfg)
-    if cfg.pop("backend", "numba") == "egl":
-        return GLRenderer(city, conditions=conditions, **cfg)
-    return Renderer(city, conditions=conditions, **cfg)
+def make_renderer(city: City, render: RenderConfig | dict, conditions: Conditions | None = None) -> Renderer:
+    """Build from the `world.render` config group: a `RenderConfig`, or its mapping (keys as in
+    conf/world/default.yaml; unknown keys are errors). backend 'egl' returns a gl_renderer.GLRenderer (ConfigError
+    world.render.backend if no EGL context)."""
+    if not isinstance(render, RenderConfig):
+        render = RenderConfig.from_dict(render)
+    cls = GLRenderer if render.backend == "egl" else Renderer
+    return cls(city, conditions=conditions, **render.renderer_options())

@@ -11,16 +11,19 @@ Conventions
 from __future__ import annotations
 
 import math
+import os
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import ConfigError
 from expoctl.world import clear_sky
 from expoctl.world.cities import city_config
-from expoctl.world.render_config import validate_render_config
+from expoctl.world.render_config import RenderConfig
 from expoctl.world.route import Route, build_segments
 
 SUN_DISK_SOLID_ANGLE_SR = 6.8e-5  # the sun's disk (0.533° diameter)
@@ -105,6 +108,37 @@ def load_city_cached(spec: str | dict, city_dir: str | None) -> "City":
     return _CITY_CACHE[key]
 
 
+@dataclass(frozen=True)
+class WorldConfig:
+    """The `world` config group (conf/world/default.yaml): the city of each split, where named cities are looked up
+    first, and the renderer (`world.render`)."""
+
+    cities: dict  # split → a city name or a city config mapping (checked when loaded: `city_config`)
+    city_dir: str | None = None
+    render: RenderConfig = RenderConfig()
+
+    @classmethod
+    def from_dict(cls, d: Any, key: str = "world", problems: Problems | None = None) -> "WorldConfig":
+        r = Section(d, key, problems)
+        cities = r.value("cities", {})
+        if not isinstance(cities, dict) or not all(isinstance(v, (str, dict)) for v in cities.values()):
+            r.problem("cities", f"must map split names to city names or city configs, got {cities!r}")
+            cities = {}
+        city_dir = r.value("city_dir", None)
+        if city_dir is not None and not isinstance(city_dir, str):
+            r.problem("city_dir", f"must be a directory path or null, got {city_dir!r}")
+            city_dir = None
+        render = RenderConfig.from_dict(r.value("render", None), r.path("render"), r.problems)
+        r.done()
+        return cls(dict(cities), city_dir, render)
+
+    def under(self, project_root: str | os.PathLike) -> "WorldConfig":
+        """The same world with a relative `city_dir` made absolute under `project_root` (workers run elsewhere)."""
+        if self.city_dir is None:
+            return self
+        return replace(self, city_dir=str((Path(project_root) / self.city_dir).resolve()))
+
+
 def load_world_city(world_cfg: dict, split: str) -> "City":
     """The city configured for `split` in the `world` config group (conf/world/default.yaml: cities, city_dir)."""
     cities = world_cfg.get("cities") if isinstance(world_cfg, dict) else None
@@ -120,12 +154,11 @@ def load_world_city(world_cfg: dict, split: str) -> "City":
 
 def validate_world_config(world_cfg: dict) -> None:
     """Validate the whole `world` group (every configured city and the render keys) before any rendering."""
-    cities = world_cfg.get("cities") if isinstance(world_cfg, dict) else None
-    if not isinstance(cities, dict) or not cities:
+    world = WorldConfig.from_dict(world_cfg)
+    if not world.cities:
         raise ConfigError("world.cities", "must map split names to city names or city configs")
-    for split, name in cities.items():
-        city_config(name, world_cfg.get("city_dir"))
-    validate_render_config(world_cfg.get("render", {}))
+    for name in world.cities.values():
+        city_config(name, world.city_dir)
 
 
 class City:

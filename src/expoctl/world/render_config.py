@@ -1,59 +1,90 @@
-"""The `world.render` config group (keys of conf/world/default.yaml): its keys, backends and validation, and the
-pinhole intrinsics of a render size and field of view. Shared by the renderer, the city config check and the backends.
+"""The `world.render` config group (keys of conf/world/default.yaml): `RenderConfig`, the one definition of its keys
+and bounds, and the pinhole intrinsics of a render size and field of view. Shared by the renderer, the city config
+check, the backends and the simulated rig.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
 
 import numpy as np
 
+from expoctl.config_reader import Problems, Section, bounds_text
 from expoctl.errors import ConfigError
+
+# A pinhole projection x = f·X/Z with f = (width/2) / tan(hfov/2) has a finite, positive focal length exactly for
+# 0° < hfov < 180°: at 0° f is infinite, at 180° it is zero and the image plane sees nothing off-axis. Any tighter
+# limit (the old 1°–179° and < 170° disagreed) would be a taste, not physics; the configured 59.1° (the paper's lens)
+# and the tests' 70°–90° sit well inside.
+HFOV_DEG_ABOVE, HFOV_DEG_BELOW = 0.0, 180.0
+# numba: the CPU ray caster (shade.render_kernel); egl: the same ray caster as a GLSL shader on a headless EGL
+# OpenGL 4.5 context (gl_renderer.GLRenderer; moderngl, e.g. Mesa llvmpipe)
+BACKENDS = ("numba", "egl")
+BLURS = ("fast", "reference")
 
 
 def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
     """Pinhole K (3×3, pixels) for square pixels, principal point at the image centre."""
     if not (isinstance(width, (int, np.integer)) and width > 0 and isinstance(height, (int, np.integer)) and height > 0):
         raise ConfigError("world.render.width", f"width/height must be positive integers, got {width}x{height}")
-    if not 1.0 < float(hfov_deg) < 179.0:
-        raise ConfigError("world.render.hfov_deg", f"must be in (1, 179) degrees, got {hfov_deg}")
+    if not HFOV_DEG_ABOVE < float(hfov_deg) < HFOV_DEG_BELOW:
+        raise ConfigError("world.render.hfov_deg", f"must be a number "
+                          f"{bounds_text(above=HFOV_DEG_ABOVE, below=HFOV_DEG_BELOW)} degrees, got {hfov_deg!r}")
     f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
     return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
 
 
-RENDER_KEYS = ("width", "height", "hfov_deg", "glare_fraction", "mip_bias", "tmax_m", "blur", "max_subframes",
-               "share_render", "backend")
-# numba: the CPU ray caster (shade.render_kernel); egl: the same ray caster as a GLSL shader on a headless EGL
-# OpenGL 4.5 context (gl_renderer.GLRenderer; moderngl, e.g. Mesa llvmpipe)
-BACKENDS = ("numba", "egl")
+@dataclass(frozen=True)
+class RenderConfig:
+    """`world.render`: image size and field of view (per camera) and the renderer's options. Defaults are
+    conf/world/default.yaml's."""
 
+    width: int = 640  # pixels
+    height: int = 480
+    hfov_deg: float = 59.1  # the paper's 6.23 mm lens on the IMX265 (7.07 mm wide): 2·atan(3.535 / 6.23)
+    glare_fraction: float = 0.005  # share of image luminance the lens scatters into a wide halo
+    mip_bias: float = 1.0  # texture footprint multiplier
+    tmax_m: float = 400.0  # rays beyond this distance see sky or distant ground
+    blur: str = "fast"
+    max_subframes: int = 48  # reference blur: cap on sub-frame renders per exposure
+    share_render: bool = False
+    backend: str = "numba"
 
-def validate_render_config(render_cfg: dict) -> None:
-    """Check the `world.render` group (keys of conf/world/default.yaml) without building anything."""
-    if not isinstance(render_cfg, dict):
-        raise ConfigError("world.render", "must be a mapping")
-    for key in render_cfg:
-        if key not in RENDER_KEYS:
-            raise ConfigError(f"world.render.{key}", f"unknown key; known: {', '.join(RENDER_KEYS)}")
-    for key in ("width", "height", "max_subframes"):
-        v = render_cfg.get(key)
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-            raise ConfigError(f"world.render.{key}", f"must be a positive integer, got {v!r}")
-    for key in ("hfov_deg", "glare_fraction", "mip_bias", "tmax_m"):
-        v = render_cfg.get(key)
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
-            raise ConfigError(f"world.render.{key}", f"must be a number, got {v!r}")
-    if "hfov_deg" in render_cfg and not 1.0 < render_cfg["hfov_deg"] < 179.0:
-        raise ConfigError("world.render.hfov_deg", f"must be in (1, 179) degrees, got {render_cfg['hfov_deg']}")
-    if "glare_fraction" in render_cfg and not 0.0 <= render_cfg["glare_fraction"] <= 0.05:
-        raise ConfigError("world.render.glare_fraction", f"must be in [0, 0.05], got {render_cfg['glare_fraction']}")
-    if "mip_bias" in render_cfg and not render_cfg["mip_bias"] > 0:
-        raise ConfigError("world.render.mip_bias", f"must be > 0, got {render_cfg['mip_bias']}")
-    if "tmax_m" in render_cfg and not render_cfg["tmax_m"] > 10:
-        raise ConfigError("world.render.tmax_m", f"must be > 10 m, got {render_cfg['tmax_m']}")
-    if "blur" in render_cfg and render_cfg["blur"] not in ("fast", "reference"):
-        raise ConfigError("world.render.blur", f"must be 'fast' or 'reference', got {render_cfg['blur']!r}")
-    if "share_render" in render_cfg and not isinstance(render_cfg["share_render"], bool):
-        raise ConfigError("world.render.share_render", f"must be true or false, got {render_cfg['share_render']!r}")
-    if "backend" in render_cfg and render_cfg["backend"] not in BACKENDS:
-        raise ConfigError("world.render.backend", f"must be one of {', '.join(BACKENDS)}, got {render_cfg['backend']!r}")
+    @classmethod
+    def from_dict(cls, d: Any, key: str = "world.render", problems: Problems | None = None) -> "RenderConfig":
+        r = Section(d, key, problems)
+        # 16 px: the smallest image a front end finds features in; 8192: far beyond any sensor the rig models
+        size = dict(min=16, max=8192, unit="pixels")
+        cfg = cls(
+            width=r.integer("width", cls.width, **size),
+            height=r.integer("height", cls.height, **size),
+            hfov_deg=r.number("hfov_deg", cls.hfov_deg, above=HFOV_DEG_ABOVE, below=HFOV_DEG_BELOW, unit="degrees"),
+            glare_fraction=r.number("glare_fraction", cls.glare_fraction, min=0.0, max=0.05),
+            mip_bias=r.number("mip_bias", cls.mip_bias, above=0.0),
+            # 10 m: shorter than a road cell, the scene would end in front of the camera
+            tmax_m=r.number("tmax_m", cls.tmax_m, above=10.0, unit="m"),
+            blur=r.choice("blur", BLURS, cls.blur),
+            max_subframes=r.integer("max_subframes", cls.max_subframes, min=1),
+            share_render=r.boolean("share_render", cls.share_render),
+            backend=r.choice("backend", BACKENDS, cls.backend),
+        )
+        r.done()
+        return cfg
+
+    @classmethod
+    def from_world(cls, world: Any, problems: Problems | None = None) -> "RenderConfig":
+        """From the whole `world` group (its `render` block)."""
+        render = world.get("render") if isinstance(world, dict) else None
+        return cls.from_dict(render, "world.render", problems)
+
+    def with_size(self, width: int | None, height: int | None) -> "RenderConfig":
+        """The same renderer at another image size (None keeps this one's)."""
+        return replace(self, width=width or self.width, height=height or self.height)
+
+    def renderer_options(self) -> dict:
+        """Keyword arguments of `Renderer` (every key but the backend)."""
+        out = asdict(self)
+        del out["backend"]
+        return out

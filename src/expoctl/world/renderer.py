@@ -15,13 +15,12 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from expoctl.errors import ConfigError
 from expoctl.world import clear_sky, portal_views
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world.city import SUN_DISK_SOLID_ANGLE_SR, City, Conditions, Trajectory
 from expoctl.world.cities import MATERIALS
-from expoctl.world.render_config import intrinsics
+from expoctl.world.render_config import RenderConfig, intrinsics
 from expoctl.world.shade import render_kernel
 from expoctl.world.sky import hdri_for
 
@@ -46,15 +45,11 @@ class Renderer:
     def __init__(self, city: City, width: int = 640, height: int = 480, hfov_deg: float = 70.0,
                  glare_fraction: float = 0.005, mip_bias: float = 1.0, tmax_m: float = 400.0, blur: str = "fast",
                  max_subframes: int = 48, share_render: bool = False, conditions: Conditions | None = None):
+        # the bounds of every option are `world.render`'s, defined once (ConfigError world.render.<key>)
+        RenderConfig.from_dict(dict(width=width, height=height, hfov_deg=hfov_deg, glare_fraction=glare_fraction,
+                                    mip_bias=mip_bias, tmax_m=tmax_m, blur=blur, max_subframes=max_subframes,
+                                    share_render=share_render))
         self.K = intrinsics(width, height, hfov_deg)
-        if not 0.0 <= glare_fraction <= 0.05:
-            raise ConfigError("world.render.glare_fraction", f"must be in [0, 0.05], got {glare_fraction}")
-        if not mip_bias > 0:
-            raise ConfigError("world.render.mip_bias", f"must be > 0, got {mip_bias}")
-        if blur not in ("fast", "reference"):
-            raise ConfigError("world.render.blur", f"must be 'fast' or 'reference', got {blur!r}")
-        if not (isinstance(max_subframes, int) and max_subframes >= 1):
-            raise ConfigError("world.render.max_subframes", f"must be an integer >= 1, got {max_subframes!r}")
         self.city, self.width, self.height, self.hfov_deg = city, int(width), int(height), float(hfov_deg)
         self.glare_fraction, self.blur, self.max_subframes = float(glare_fraction), blur, max_subframes
         self.share_render = bool(share_render)

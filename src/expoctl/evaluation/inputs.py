@@ -1,0 +1,71 @@
+"""What closed-loop evaluation reads from the resolved config, checked and typed once by the stage (evaluate,
+select_model) and handed to every run's worker process as is: no worker parses the config again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from expoctl.camera.sensor import SensorConfig
+from expoctl.config_reader import Problems, Section, read_seed
+from expoctl.evaluation.config import EvaluateConfig
+from expoctl.features.pipeline import FeaturesConfig
+from expoctl.sim.closed_loop import RigConfig
+from expoctl.sim.collect import controller_params
+from expoctl.world.city import WorldConfig
+from expoctl.world.render_config import RenderConfig
+
+
+@dataclass(frozen=True)
+class EvaluationInputs:
+    """The `evaluate`, `features`, `world`, `rig`, `sensor` and `controllers` groups, `seed`, and the two paths
+    evaluation reads (`paths.frames`: SumLog is tuned on the training frames; the learned controller's network)."""
+
+    evaluate: EvaluateConfig
+    features: FeaturesConfig
+    seed: int
+    world: WorldConfig
+    rig: RigConfig
+    sensor: SensorConfig
+    controllers: dict[str, dict]  # controllers.<name> as given (each controller's factory checks its keys)
+    frames_path: str  # paths.frames
+    model_path: str  # controllers.learned.checkpoint, else paths.model (relative: to the project root)
+
+    @classmethod
+    def from_resolved(cls, cfg: dict[str, Any], problems: Problems | None = None) -> "EvaluationInputs":
+        """Build from the resolved config; every problem of the groups read here is reported at once (with
+        `problems`, added to them for the caller to raise with its own)."""
+        owner = problems is None
+        problems = problems if problems is not None else Problems()
+        top = Section(cfg, "", problems)
+        evaluate = EvaluateConfig.from_dict(top.value("evaluate", None), "evaluate", problems)
+        features = FeaturesConfig.from_dict(top.value("features", None), problems)
+        seed = read_seed(top)
+        world = WorldConfig.from_dict(top.value("world", None), "world", problems)
+        rig = RigConfig.from_dict(top.value("rig", None), "rig", problems)
+        sensor = SensorConfig.from_dict(top.value("sensor", None), "sensor", problems)
+        sections = top.section("controllers")
+        controllers = {name: controller_params(sections, name) for name in sections.mapping}
+        paths = top.section("paths")
+        frames_path = paths.text("frames", "")
+        model_path = (controllers.get("learned") or {}).get("checkpoint") or paths.text("model", "")
+        if owner:
+            problems.raise_if_any()
+        return cls(evaluate, features, seed, world, rig, sensor, controllers, frames_path, str(model_path))
+
+    @property
+    def render(self) -> RenderConfig:
+        """The renderer of every run: world.render at evaluate.render_size when that is set."""
+        if self.evaluate.render_size is None:
+            return self.world.render
+        return self.world.render.with_size(*self.evaluate.render_size)
+
+    def controller_params(self, name: str) -> dict:
+        """controllers.<name> (a copy; {} when absent)."""
+        return dict(self.controllers.get(name) or {})
+
+    def learned_model_path(self, project_root: str | Path) -> Path:
+        p = Path(self.model_path)
+        return p if p.is_absolute() else Path(project_root) / p
