@@ -21,9 +21,7 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from expoctl.camera.response import SATURATED_DN  # noqa: E402
-
-DARK_DN = 5
+from expoctl.camera.response import DARK_DN, SATURATED_DN  # noqa: E402
 
 
 def iteration_of(sequence: str) -> int:

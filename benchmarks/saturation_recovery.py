@@ -56,7 +56,8 @@ def main() -> int:
     pcfg = ProbeConfig.from_dict({"city": "train", "traversal": 900, "seed": args.seed, "frames": args.frames,
                                   "offsets_ev": args.offsets, "width": args.width, "height": args.height}, "probe")
     t0 = time.perf_counter()
-    probe = make_probe(pcfg, EvaluationInputs.from_resolved(_conf()), ROOT)
+    inputs = EvaluationInputs.from_resolved(_conf())
+    probe = make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, inputs.controller_params("agae"), ROOT)
     print(f"train city, traversal {pcfg.traversal}, {pcfg.width}×{pcfg.height}, {pcfg.frames} frames per run")
     for name, st in probe.starts.items():
         print(f"  {name} (frame {st['frame']}): starts at " + ", ".join(f"{a:+.1f}" for a in st["start_offsets_ev"])

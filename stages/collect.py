@@ -12,18 +12,28 @@ from stages.common import PROJECT_ROOT, stage_main
 log = logging.getLogger(__name__)
 
 
+#: iteration<N>.reference_gate: probe = the previous iteration's network drives camera 1 only if it passes the
+#: saturation probe (select_model.probe's test), otherwise iteration 1's reference does; none = always the network
+#: (the paper). Why: a network that runs into saturation records white frames whose labels can only say "darker"
+#: (docs/calibrated_seeds.md: seed 4's iteration-2 camera 1 was a median 98.7 % clipped).
+REFERENCE_GATES = ("probe", "none")
+REFERENCE_REPORT = "collect_reference.json"
+
+
 def later_iteration_config(cfg: dict) -> dict:
     """collect_iter<N>: `iteration<N>.collect` merged over `collect`; the previous iteration's network drives camera 1.
 
     Disabled (`iteration<N>.enabled: false`): every split records zero sequences, so the iteration adds no data.
     """
-    from expoctl.errors import ConfigError
+    from expoctl.config_reader import Problems, Section
     from expoctl.world.cities import deep_merge
 
     n, block = cfg["iteration"], cfg["iteration_block"]
-    enabled = block.get("enabled")
-    if not isinstance(enabled, bool):
-        raise ConfigError(f"iteration{n}.enabled", f"must be true or false, got {enabled!r}")
+    problems = Problems()
+    r = Section(block, f"iteration{n}", problems)
+    enabled = r.boolean("enabled")
+    gate = r.choice("reference_gate", REFERENCE_GATES)
+    problems.raise_if_any()
     collect_cfg = deep_merge(cfg["collect"], block.get("collect") or {})
     if not enabled:
         collect_cfg["splits"] = {k: {**v, "n_sequences": 0} for k, v in collect_cfg["splits"].items()}
@@ -31,20 +41,68 @@ def later_iteration_config(cfg: dict) -> dict:
     if collect_cfg.get("reference_controller") == "learned":
         checkpoint = PROJECT_ROOT / cfg["paths_prev"]["model"]
         if enabled and not checkpoint.is_file():
+            from expoctl.errors import ConfigError
+
             key = "paths.model" if n == 2 else f"iteration{n - 1}.paths.model"
             raise ConfigError(key, f"{checkpoint}: the iteration-{n - 1} model is missing (run its train stage)")
         controllers["learned"] = {**(controllers.get("learned") or {}), "checkpoint": str(checkpoint)}
-    return {**cfg, "collect": collect_cfg, "controllers": controllers}
+    # the gate's fallback is iteration 1's reference, `collect.reference_controller` before the merge
+    return {**cfg, "collect": collect_cfg, "controllers": controllers, "enabled": enabled, "reference_gate": gate,
+            "reference_fallback": cfg["collect"].get("reference_controller")}
+
+
+def gate_reference(cfg: dict) -> tuple[dict, dict]:
+    """Apply `iteration<N>.reference_gate` to a later iteration's config: (the config camera 1 is driven with, the
+    decision as recorded in reports/iter<N>/collect_reference.json)."""
+    from expoctl.controllers.registry import make_controller
+    from expoctl.errors import ConfigError
+    from expoctl.selection.saturation_probe import ProbeConfig, make_probe
+
+    n, gate, network = cfg["iteration"], cfg["reference_gate"], cfg["collect"].get("reference_controller")
+    decision = {"iteration": n, "reference_gate": gate, "network": f"iteration{n - 1}", "probe": None,
+                "reference_controller": network}
+    if gate == "none" or network != "learned" or not cfg["enabled"]:
+        return cfg, decision
+    fallback = cfg["reference_fallback"]
+    if fallback == "learned":
+        raise ConfigError("collect.reference_controller", "is learned, so reference_gate: probe has nothing to fall "
+                          f"back to (set iteration{n}.reference_gate: none or an AE as iteration 1's reference)")
+    pcfg = ProbeConfig.from_dict((cfg.get("select_model") or {}).get("probe"), "select_model.probe")
+    inputs = CollectInputs.from_resolved(cfg)  # world, rig and sensor, checked
+    probe = make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, (cfg["controllers"] or {}).get("agae") or {},
+                       PROJECT_ROOT)
+    result = probe.run(make_controller("learned", cfg["controllers"]["learned"]))
+    decision["probe"] = result
+    if result["passes"]:
+        return cfg, decision
+    decision["reference_controller"] = fallback
+    return {**cfg, "collect": {**cfg["collect"], "reference_controller": fallback}}, decision
 
 
 def run(cfg: dict, tracker) -> None:
+    decision = None
     if cfg.get("iteration", 1) > 1:
-        cfg = later_iteration_config(cfg)
+        cfg, decision = gate_reference(later_iteration_config(cfg))
+        report = PROJECT_ROOT / cfg["paths"]["reports_dir"] / REFERENCE_REPORT
     inputs = CollectInputs.from_resolved(cfg)  # every config problem at once, before any work
+    if decision is not None:
+        from expoctl.io import write_json
+        from expoctl.selection.saturation_probe import summary_line
+
+        if decision["probe"] is not None:
+            log.info("reference gate: %s", summary_line(decision["network"], decision["probe"]))
+        log.info("iteration %d: camera 1 is driven by %s", decision["iteration"], decision["reference_controller"])
+        tracker.log_params({"reference_controller": decision["reference_controller"]})
+        if decision["probe"] is not None:
+            tracker.log_metrics({"reference_probe_passes": int(decision["probe"]["passes"]),
+                                 "reference_probe_worst_saturated_frac": decision["probe"]["worst_saturated_frac"],
+                                 "reference_probe_worst_dark_frac": decision["probe"]["worst_dark_frac"]})
     out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
     t0 = time.perf_counter()
     # a bar on a terminal; under DVC (no tty) one log line per finished sequence
     summaries = collect(inputs, out_dir, progress=True if sys.stderr.isatty() else log.info, project_root=PROJECT_ROOT)
+    if decision is not None:
+        write_json(decision, report)
     seconds = time.perf_counter() - t0
     n_frames = sum(s["n_frames"] for s in summaries)
     metrics = {

@@ -64,8 +64,10 @@ def stage_keys(stage: str) -> list[str]:
         return STAGE_KEYS.get(stage, [])
     keys = STAGE_KEYS[base] + [f"iteration{n}.enabled", f"iteration{n}.paths"]
     keys += [f"iteration{k}.paths" for k in range(2, n)]
-    if base == "collect":  # iterations ≥ 2 drive camera 1 with the learned network (its latency_frames)
-        keys += ["controllers.learned", f"iteration{n}.collect"] + (["paths.model"] if n == 2 else [])
+    if base == "collect":  # iterations ≥ 2 drive camera 1 with the learned network (its latency_frames) if it
+        # passes the saturation probe (`iteration<N>.reference_gate`)
+        keys += ["controllers.learned", f"iteration{n}.collect", f"iteration{n}.reference_gate",
+                 "select_model.probe"] + (["paths.model"] if n == 2 else [])
     return keys
 
 

@@ -30,7 +30,8 @@ from stages.keys import LAST_ITERATION
 log = logging.getLogger(__name__)
 
 PROBE_RULE = ("the saturation probe drops candidates with a saturated closed-loop fixed point (some start ends with "
-              "at least select_model.probe.max_saturated_fraction of the frame clipped)")
+              "at least select_model.probe.max_saturated_fraction of the frame clipped, or "
+              "max_dark_fraction of it black)")
 RULE = ("most windows with VO tracking, then the highest mean over ORB and libviso2-style of the dynamic-section "
         "minimum NFM relative to the best candidate's, then the later iteration")
 
@@ -115,6 +116,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         metrics["probe_seconds"] = probe["seconds"]
     for name, r in ((probe or {}).get("results") or {}).items():
         metrics[f"{name}.probe_worst_saturated_frac"] = r["worst_saturated_frac"]
+        metrics[f"{name}.probe_worst_dark_frac"] = r["worst_dark_frac"]
         metrics[f"{name}.probe_passes"] = int(r["passes"])
     for s in scores + ([reference] if reference else []):
         metrics[f"{s['name']}.vo_ok"] = s["vo_ok"]

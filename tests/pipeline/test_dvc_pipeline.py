@@ -71,6 +71,11 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert [s["name"] for s in selection["scores"]] == ["iteration1", "iteration2", "iteration3"]
     assert selection["reference_statistics"]["name"] == "agae" and len(selection["runs"]) == 4
     chosen = next(c for c in selection["candidates"] if c["name"] == selection["chosen"])
+    # collect_iter@2's reference gate ran select_model's probe on the same network: the same verdict, to the bit
+    gate = json.loads((p.root / "reports" / "iter2" / "collect_reference.json").read_text())
+    probed = selection["probe"]["results"]["iteration1"]
+    assert gate["probe"]["worst_saturated_frac"] == probed["worst_saturated_frac"]
+    assert gate["reference_controller"] == ("learned" if probed["passes"] else "agae")
     assert (p.root / "models" / "controller_final.pt").read_bytes() == (p.root / chosen["path"]).read_bytes()
     assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
     assert p.stage_runs(children=True) == {"evaluate": 7 * 2}  # one per (controller, city), for the MLflow UI

@@ -50,7 +50,9 @@ def test_every_iteration_has_its_stages_with_its_own_outputs(stages):
             assert stage_name(base, n) in stages, f"{stage_name(base, n)} missing from dvc.yaml"
         collect = stages[stage_name("collect", n)]
         previous_model = "models/controller.pt" if n == 2 else f"models/controller_iter{n - 1}.pt"
-        assert previous_model in collect[3] and collect[4] == [f"data/raw_iter{n}"]
+        assert previous_model in collect[3] and "src/expoctl/selection/saturation_probe.py" in collect[3]
+        # its raw data, and which controller drove camera 1 (the reference gate's decision)
+        assert collect[4] == [f"data/raw_iter{n}", f"reports/iter{n}/collect_reference.json"]
         ingest = stages[stage_name("ingest", n)]
         assert set(ingest[3]) >= {"data/raw"} | {f"data/raw_iter{k}" for k in range(2, n + 1)}
         train = stages[stage_name("train", n)]

@@ -17,6 +17,7 @@ from expoctl.selection.saturation_probe import ProbeConfig, _longest_run, settin
     ({"offsets_ev": []}, "p.offsets_ev"), ({"offsets_ev": [0, float("nan")]}, "p.offsets_ev"),
     ({"max_saturated_fraction": 0}, "p.max_saturated_fraction"), ({"max_saturated_fraction": 1.5},
                                                                      "p.max_saturated_fraction"),
+    ({"max_dark_fraction": 0}, "p.max_dark_fraction"), ({"max_dark_fraction": 1.01}, "p.max_dark_fraction"),
     ({"enabled": "yes"}, "p.enabled"), ({"city": ""}, "p.city"), ({"width": 8}, "p.width"),
     ({"traversal": -1}, "p.traversal"), ({"offset": [0]}, "p.offset")])
 def test_bad_probe_config_names_the_key(d, key):
@@ -28,6 +29,7 @@ def test_bad_probe_config_names_the_key(d, key):
 def test_probe_config_defaults_and_lists():
     p = ProbeConfig.from_dict({"offsets_ev": [0, 6]}, "p")
     assert p == ProbeConfig() and p.offsets_ev == (0.0, 6.0) and ProbeConfig.from_dict(None, "p") == p
+    assert ProbeConfig.from_dict({"max_dark_fraction": None}, "p").max_dark_fraction is None
 
 
 def test_select_config_refuses_a_probe_on_the_held_out_city():
@@ -80,7 +82,8 @@ def probe(tmp_path_factory):
     # ~2.5 EV (seen unsaturated) decay by 0.873 per frame; more frames would carry the tunnel start out of the exit
     pcfg = ProbeConfig.from_dict({"frames": 48, "width": 64, "height": 48, "first_frames": 4, "last_frames": 4}, "p")
     cfg["world"]["cities"]["train"] = {"base": "train", "textures": {"tile_px": 256}}
-    return make_probe(pcfg, EvaluationInputs.from_resolved(cfg), root), cfg
+    inputs = EvaluationInputs.from_resolved(cfg)
+    return make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, inputs.controller_params("agae"), root), cfg
 
 
 def test_agae_returns_to_its_own_level_from_a_bright_start(probe):
@@ -100,7 +103,7 @@ def test_agae_returns_to_its_own_level_from_a_bright_start(probe):
         assert 5.0 < bright["start_offset_ev"] <= 6.0 + 1e-9
         # the darkening limit sets the pace; the first of the 4 frames has no step yet (the AE meters the frame before)
         assert bright["mean_step_first_ev"] == pytest.approx(-0.178 * 3 / 4, abs=1e-3), start
-    assert result["passes"] and result["worst_saturated_frac"] < 0.5
+    assert result["passes"] and result["worst_saturated_frac"] < 0.5 and result["worst_dark_frac"] < 0.5
 
 
 def test_a_camera_stuck_at_the_longest_exposure_and_highest_gain_fails(probe):
@@ -111,3 +114,27 @@ def test_a_camera_stuck_at_the_longest_exposure_and_highest_gain_fails(probe):
     result = p.run(stuck)
     assert not result["passes"] and result["worst_saturated_frac"] == 1.0
     assert all(r["final_saturated_frac"] == 1.0 for r in result["starts"]["open_road"])
+
+
+def test_a_camera_stuck_at_the_shortest_exposure_and_lowest_gain_fails_on_the_dark_side(probe):
+    """The mirror image. In the tunnel AG+AE settles at about −5.7 EV; 75 µs at 0 dB is −13.7 EV, 8 EV darker, so a
+    pixel keeps 1/256 of its light: everything AG+AE shows below about 168 of 255 (sRGB) falls to ≤ 5 codes, which
+    in a tunnel is most of the frame (AG+AE's own frame there has no black pixel). With a dark line at half the
+    frame it fails with nothing clipped white; with the dark line off (None) it passes, as the white-only probe did."""
+    from dataclasses import replace
+
+    from expoctl.camera.ranges import EXPOSURE_US_MIN, GAIN_DB_MIN
+    from expoctl.controllers.registry import make_controller
+
+    p, _ = probe
+    stuck = {"mode": "manual", "gain_db": GAIN_DB_MIN, "exposure_us": EXPOSURE_US_MIN}
+    saved = p.cfg
+    try:
+        p.cfg = replace(saved, max_dark_fraction=0.5)
+        result = p.run(make_controller("fixed", stuck))
+        assert all(r["final_offset_ev"] < -7.5 and r["final_dark_frac"] > 0.5 for r in result["starts"]["tunnel"])
+        assert result["worst_saturated_frac"] == 0.0 and not result["passes"]
+        p.cfg = replace(saved, max_dark_fraction=None)
+        assert p.run(make_controller("fixed", stuck))["passes"]
+    finally:
+        p.cfg = saved

@@ -29,4 +29,7 @@ def test_later_iterations_read_their_block_and_every_earlier_iterations_paths():
                                                                   "iteration2.paths"]
     assert "iteration2.collect" in stage_keys("collect_iter@2") and "paths.model" in stage_keys("collect_iter@2")
     assert "iteration3.collect" in stage_keys("collect_iter@3") and "iteration2.paths" in stage_keys("collect_iter@3")
+    # the reference gate: its own key and the probe's test it runs on the previous network
+    assert {"iteration2.reference_gate", "select_model.probe"} <= set(stage_keys("collect_iter@2"))
+    assert "iteration3.reference_gate" in stage_keys("collect_iter@3")
     assert stage_keys("no_such_stage") == []

@@ -24,6 +24,7 @@ from expoctl.errors import ConfigError
 
 CURVES = ("srgb", "gamma", "linear")
 SATURATED_DN = 250  # a delivered 8-bit code (or grey level) at or above this counts as (near) saturated, clipped
+DARK_DN = 5  # … and at or below this as black: within a few codes of the dark floor, no texture survives the noise
 
 
 def apply_curve(x: np.ndarray, curve: str, gamma) -> np.ndarray:

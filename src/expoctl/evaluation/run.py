@@ -19,7 +19,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from expoctl.camera.response import SATURATED_DN  # grey level counted as clipped (8-bit)
+from expoctl.camera.response import DARK_DN, SATURATED_DN  # grey levels counted as black / clipped (8-bit)
 from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
 from expoctl.sim.closed_loop import run_closed_loop
@@ -27,8 +27,6 @@ from expoctl.vo.local_map import MapTracker, MapTrackerConfig
 
 #: front-end keys of metrics.json / frames.parquet: raw and SumLog variants of each front end
 VARIANTS = ("orb", "viso", "orb_sumlog", "viso_sumlog")
-
-DARK_DN = 5
 
 
 @dataclass(frozen=True)

@@ -166,7 +166,7 @@ def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], 
         if not Path(c.path).is_file():
             raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
     section = inputs.controller_params("learned")
-    probe = make_probe(pcfg, inputs, project_root)
+    probe = make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, inputs.controller_params("agae"), project_root)
     return probe_all(probe, {c.name: (lambda p=c.path: make_controller("learned", {**section, "checkpoint": str(p)}))
                              for c in candidates})
 

@@ -5,7 +5,9 @@ contain: camera 1 under a well-exposed reference, camera 2 within about ±1 EV o
 meets states its data never contain, and the worst of them is a saturated frame: it shows almost nothing of the
 scene, so nothing in the image tells the network how far to step down. If its step there is about zero, saturation is
 an absorbing state and the controller stays white. Measured (docs/old_camera_results.md): every network that diverged in the
-evaluation ended this probe with 97–100 % of the frame clipped from some start; no sound one did.
+evaluation ended this probe with 97–100 % of the frame clipped from some start; no sound one did. The dark side is
+the mirror image: a black frame shows as little, and two calibrated-camera networks settled 3–9 EV below AG+AE with
+nothing clipped white (docs/calibrated_seeds.md), so the probe also counts black pixels.
 
 Protocol: the real simulator and sensor (one city, one traversal no stage collects or evaluates, e.g. 900), in closed
 loop, from one start frame in the middle of the route's longest open-road (static) stretch and one in the middle of
@@ -13,8 +15,10 @@ its longest tunnel interior. AG+AE first runs `frames` frames from its own start
 (its exposure product over the last `last_frames` frames). Then each controller runs the same frames from
 P_ref·2^k for each offset k (exposure first, then gain), with no warm-up. Per controller, start and k: the offset of
 its exposure product from P_ref over the last frames (EV), its mean step over the first `first_frames` frames, and
-the clipped share (grey ≥ 250) of the last frame. One attracting fixed point shows as the same final offset from
-every k; an absorbing saturated state as final offset ≈ k, step ≈ 0 and a white last frame.
+the clipped share (grey ≥ 250) and the black share (grey ≤ 5) of the last frame. One attracting fixed point shows as
+the same final offset from every k; an absorbing saturated state as final offset ≈ k, step ≈ 0 and a white (or black)
+last frame. A controller fails when some start ends with at least `max_saturated_fraction` of the frame clipped or
+at least `max_dark_fraction` of it black.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from expoctl.camera.ranges import exposure_value_ev
-from expoctl.camera.response import SATURATED_DN  # grey level counted as clipped (as evaluate's saturated_frac)
+from expoctl.camera.response import DARK_DN, SATURATED_DN  # as evaluate's dark_frac and saturated_frac
 from expoctl.controllers.agae import split_exposure_first
 from expoctl.controllers.base import Controller, Settings
 from expoctl.config_reader import Problems, Section
@@ -35,7 +39,8 @@ from expoctl.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
     from expoctl.camera.sensor import SensorConfig
-    from expoctl.evaluation.inputs import EvaluationInputs
+    from expoctl.sim.closed_loop import RigConfig
+    from expoctl.world.city import WorldConfig
 
 AGAE_START = Settings(0.0, 5000.0)  # AG+AE's own start before it settles to the reference level
 
@@ -53,6 +58,7 @@ class ProbeConfig:
     width: int = 320
     height: int = 240
     max_saturated_fraction: float = 0.97  # a candidate fails when some start ends with at least this share clipped
+    max_dark_fraction: float | None = 0.97  # … or with at least this share black; None: white clipping only
     last_frames: int = 10
     first_frames: int = 10
 
@@ -73,6 +79,7 @@ class ProbeConfig:
             width=r.integer("width", cls.width, min=16),
             height=r.integer("height", cls.height, min=16),
             max_saturated_fraction=r.number("max_saturated_fraction", cls.max_saturated_fraction, above=0.0, max=1.0),
+            max_dark_fraction=r.number("max_dark_fraction", cls.max_dark_fraction, above=0.0, max=1.0, nullable=True),
             **ends,
         )
         r.done()
@@ -136,14 +143,14 @@ class SaturationProbe:
         self.sensor = make_sensors(sensor, render.with_size(pcfg.width, pcfg.height), 1, 0.0, pcfg.seed)[0][0]
         self.starts = {}
         for name, frame in start_frames(self.trajectory, pcfg.frames).items():
-            evs, _ = self._drive(agae, AGAE_START, frame)
+            evs, _, _ = self._drive(agae, AGAE_START, frame)
             ref = float(evs[-pcfg.last_frames:].mean())
             # the camera's ranges clip some starts (e.g. −4 EV in daylight): record where each run really starts
             offsets = [_ev(settings_at(ref + k)) - ref for k in pcfg.offsets_ev]
             self.starts[name] = {"frame": int(frame), "agae_ref_ev": ref, "start_offsets_ev": offsets}
 
-    def _drive(self, controller: Controller, initial: Settings, start: int) -> tuple[np.ndarray, float]:
-        """Per-frame EV of the applied settings, and the clipped share of the last frame."""
+    def _drive(self, controller: Controller, initial: Settings, start: int) -> tuple[np.ndarray, float, float]:
+        """Per-frame EV of the applied settings, and the clipped and black shares of the last frame."""
         from expoctl.sim.closed_loop import run_closed_loop
 
         evs, last = [], None
@@ -151,43 +158,47 @@ class SaturationProbe:
                                  range(start, start + self.cfg.frames), self.cfg.seed):
             last = f.camera(1)
             evs.append(_ev(last.settings))
-        return np.array(evs), float((last.image.mean(axis=2) >= SATURATED_DN).mean())  # the last frame only
+        grey = last.image.mean(axis=2)  # the last frame only
+        return np.array(evs), float((grey >= SATURATED_DN).mean()), float((grey <= DARK_DN).mean())
 
     def run(self, controller: Controller) -> dict:
         """{start name: [per offset: k_ev, start/final offset (EV), mean first step (EV/frame), final clipped
-        share, per-frame offsets]} plus `worst_saturated_frac` and `passes`."""
+        and black shares, per-frame offsets]} plus `worst_saturated_frac`, `worst_dark_frac` and `passes`."""
         pc = self.cfg
         out: dict = {"starts": {}}
         for name, st in self.starts.items():
             rows = []
             for k in pc.offsets_ev:
-                evs, clipped = self._drive(controller, settings_at(st["agae_ref_ev"] + k), st["frame"])
+                evs, clipped, dark = self._drive(controller, settings_at(st["agae_ref_ev"] + k), st["frame"])
                 off = evs - st["agae_ref_ev"]
                 rows.append({"k_ev": k, "start_offset_ev": float(off[0]),
                              "final_offset_ev": float(off[-pc.last_frames:].mean()),
                              "mean_step_first_ev": float((off[pc.first_frames] - off[0]) / pc.first_frames),
-                             "final_saturated_frac": clipped, "offset_ev": off.round(3).tolist()})
+                             "final_saturated_frac": clipped, "final_dark_frac": dark,
+                             "offset_ev": off.round(3).tolist()})
             out["starts"][name] = rows
-        worst = max(r["final_saturated_frac"] for rows in out["starts"].values() for r in rows)
-        out["worst_saturated_frac"] = worst
-        out["passes"] = bool(worst < pc.max_saturated_fraction)
+        rows = [r for rows in out["starts"].values() for r in rows]
+        out["worst_saturated_frac"] = worst = max(r["final_saturated_frac"] for r in rows)
+        out["worst_dark_frac"] = darkest = max(r["final_dark_frac"] for r in rows)
+        out["passes"] = bool(worst < pc.max_saturated_fraction
+                             and (pc.max_dark_fraction is None or darkest < pc.max_dark_fraction))
         return out
 
 
-def make_probe(pcfg: ProbeConfig, inputs: "EvaluationInputs", project_root) -> SaturationProbe:
-    """The probe for the typed config the stage built (world, rig, sensor, controllers.agae) and its city."""
+def make_probe(pcfg: ProbeConfig, world: "WorldConfig", rig: "RigConfig", sensor: "SensorConfig",
+               agae_params: Mapping, project_root) -> SaturationProbe:
+    """The probe for typed configs a stage built (its world, rig and sensor; `controllers.agae` as given) and its city.
+    select_model passes its EvaluationInputs' groups, collect_iter its CollectInputs' ones."""
     from pathlib import Path
 
     from expoctl.controllers.registry import make_controller
     from expoctl.world import load_city
 
-    world = inputs.world
     if pcfg.city not in world.cities:
         raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(world.cities)})")
     city_dir = world.city_dir if world.city_dir is not None else "conf/world/cities"
     city = load_city(world.cities[pcfg.city], str(Path(project_root) / city_dir))
-    agae = make_controller("agae", inputs.controller_params("agae"))
-    return SaturationProbe(pcfg, city, inputs.rig, world.render, inputs.sensor, agae)
+    return SaturationProbe(pcfg, city, rig, world.render, sensor, make_controller("agae", dict(agae_params)))
 
 
 def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Controller]]) -> dict[str, dict]:
@@ -196,10 +207,12 @@ def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Con
 
 
 def summary_line(name: str, result: dict) -> str:
-    """One human-readable line: final offset / clipped share per start and offset, and the verdict."""
+    """One human-readable line: final offset / clipped / black share per start and offset, and the verdict."""
     cells = []
     for start, rows in result["starts"].items():
         cells.append(f"{start} " + ", ".join(f"{r['k_ev']:+g}→{r['final_offset_ev']:+.1f} EV "
-                                             f"{100 * r['final_saturated_frac']:.0f} %" for r in rows))
+                                             f"{100 * r['final_saturated_frac']:.0f} % white "
+                                             f"{100 * r.get('final_dark_frac', 0.0):.0f} % black" for r in rows))
     verdict = "passes" if result["passes"] else "FAILS (saturated fixed point)"
-    return f"{name}: " + "; ".join(cells) + f"; worst {100 * result['worst_saturated_frac']:.0f} % clipped: {verdict}"
+    return (f"{name}: " + "; ".join(cells) + f"; worst {100 * result['worst_saturated_frac']:.0f} % white, "
+            f"{100 * result.get('worst_dark_frac', 0.0):.0f} % black: {verdict}")
