@@ -46,6 +46,10 @@ def seed_row(seed: str, root: Path) -> dict:
            "probe": {k: bool(v.get("passes")) for k, v in probe.items()},
            "probe_max_clipped": {k: max(s["final_saturated_frac"] for st in v["starts"].values() for s in st)
                                  for k, v in probe.items()},
+           # black share: recorded since the probe's dark line (3c237c7); None for earlier runs
+           "probe_max_dark": {k: v.get("worst_dark_frac") for k, v in probe.items()},
+           # the controller that drove camera 1 in iteration 2 (the reference gate's decision; before it: learned)
+           "iteration2_reference": _iteration2_reference(rep),
            "val_loss": tr["val_loss"], "val_follow": tr["val_follow"],
            # open-loop signs of a collapse to "hold the input settings", known before any closed loop
            "hold_val_loss": tr.get("hold_val_loss"), "best_epoch": tr.get("best_epoch")}
@@ -72,6 +76,19 @@ def seed_row(seed: str, root: Path) -> dict:
         p = paired[paired["route_split"] == city]
         row[f"{city}_ev_offset"] = float(np.median(p["ev_ours"] - p["ev_agae"]))
     return row
+
+
+def _iteration2_reference(rep: Path) -> str:
+    gate = rep / "iter2" / "collect_reference.json"
+    if not gate.is_file():
+        return "learned (no gate)"
+    return json.loads(gate.read_text())["reference_controller"]
+
+
+def _probe_cell(row: dict, k: str, passes: bool) -> str:
+    dark = (row.get("probe_max_dark") or {}).get(k)
+    black = "" if dark is None else f" / {dark:.0%} black"
+    return f"{k[-1]}: {'pass' if passes else 'FAIL'} {row['probe_max_clipped'][k]:.0%} white{black}"
 
 
 def _vs_hold(row: dict) -> str:
@@ -106,15 +123,14 @@ def main(argv=None) -> int:
     if problems:
         print("seed_summary: " + "\n  ".join(problems), file=sys.stderr)
         return 2
-    print("| seed | chosen (probe on every candidate) | val loss | follow | val ORB | val viso | test ORB | test viso "
+    print("| seed | it. 2 camera 1 | chosen (probe on every candidate) | val loss | follow | val ORB | val viso | test ORB | test viso "
           "| VO ours (f2f; map) | VO AG+AE | EV offset val / test | val loss / hold (best epoch) |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|---:|")
     for r in rows:
         mins = " | ".join(f"{r[f'{c}_{n}_min'][0]:.0f} / {r[f'{c}_{n}_min'][1]:.0f} ({r[f'{c}_{n}_won']})"
                           for c in CITIES for _, n in FRONT_ENDS)
-        probe = ", ".join(f"{k[-1]}: {'pass' if v else 'FAIL'} {r['probe_max_clipped'][k]:.0%}"
-                          for k, v in r["probe"].items())
-        print(f"| {r['seed']} | {r['chosen']} ({probe}) | {r['val_loss']:.4f} | {r['val_follow']:.2f} | {mins} "
+        probe = ", ".join(_probe_cell(r, k, v) for k, v in r["probe"].items())
+        print(f"| {r['seed']} | {r.get('iteration2_reference', 'learned (no gate)')} | {r['chosen']} ({probe}) | {r['val_loss']:.4f} | {r['val_follow']:.2f} | {mins} "
               f"| {r['vo_learned']} | {r['vo_agae']} | {r['validation_ev_offset']:+.2f} / {r['test_ev_offset']:+.2f} "
               f"| {_vs_hold(r)} |")
     if args.json:
