@@ -119,7 +119,8 @@ def main(argv=None) -> int:
             prior = []
         given = {r["seed"] for r in rows}
         rows = [r for r in prior if r.get("seed") not in given] + rows
-        rows.sort(key=lambda r: int(r["seed"]) if str(r["seed"]).isdigit() else str(r["seed"]))
+        # numeric seeds in order, then named runs (e.g. "1-nogate") by name
+        rows.sort(key=lambda r: (0, int(r["seed"]), "") if str(r["seed"]).isdigit() else (1, 0, str(r["seed"])))
     if problems:
         print("seed_summary: " + "\n  ".join(problems), file=sys.stderr)
         return 2
