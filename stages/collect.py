@@ -54,6 +54,7 @@ def later_iteration_config(cfg: dict) -> dict:
 def gate_reference(cfg: dict) -> tuple[dict, dict]:
     """Apply `iteration<N>.reference_gate` to a later iteration's config: (the config camera 1 is driven with, the
     decision as recorded in reports/iter<N>/collect_reference.json)."""
+    from expoctl.config_reader import Problems
     from expoctl.controllers.registry import make_controller
     from expoctl.errors import ConfigError
     from expoctl.selection.saturation_probe import ProbeConfig, make_probe
@@ -67,8 +68,10 @@ def gate_reference(cfg: dict) -> tuple[dict, dict]:
     if fallback == "learned":
         raise ConfigError("collect.reference_controller", "is learned, so reference_gate: probe has nothing to fall "
                           f"back to (set iteration{n}.reference_gate: none or an AE as iteration 1's reference)")
-    pcfg = ProbeConfig.from_dict((cfg.get("select_model") or {}).get("probe"), "select_model.probe")
-    inputs = CollectInputs.from_resolved(cfg)  # world, rig and sensor, checked
+    problems = Problems()  # a bad probe and a bad collect block are reported together, before the probe runs
+    pcfg = problems.collect(ProbeConfig.from_dict, (cfg.get("select_model") or {}).get("probe"), "select_model.probe")
+    inputs = problems.collect(CollectInputs.from_resolved, cfg)  # world, rig and sensor, checked
+    problems.raise_if_any()
     probe = make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, (cfg["controllers"] or {}).get("agae") or {},
                        PROJECT_ROOT)
     result = probe.run(make_controller("learned", cfg["controllers"]["learned"]))

@@ -90,3 +90,23 @@ def test_reference_gate_none_is_the_papers_protocol_and_a_bad_gate_names_the_key
         stage.later_iteration_config(for_iteration({**cfg, "iteration2": {**block, "reference_gate": "maybe"}}, 2))
     assert exc.value.key == "iteration2.reference_gate"
     assert not (tmp_path / "raw2").exists()
+
+
+def test_reference_gate_reports_probe_and_collect_problems_in_one_pass(tmp_path, monkeypatch):
+    """A bad select_model.probe value and a bad collect value are named together, before the probe drives a frame."""
+    from expoctl.errors import ConfigError
+    from stages.iterations import for_iteration
+
+    use_real_or_test_sensor(monkeypatch)
+    cfg, _ = selection_project(tmp_path)
+    cfg["paths"].update(model=str(tmp_path / "models" / "white.pt"), raw_dir=str(tmp_path / "raw"))
+    cfg["collect"] = {"reference_controller": "agae", "warmup_frames": -1,
+                      "splits": {"train": None, "validation": None, "test": None}}
+    cfg["select_model"] = {**cfg.get("select_model", {}), "probe": {"frames": 0}}
+    block = {"enabled": True, "reference_gate": "probe", "collect": {"reference_controller": "learned"},
+             "paths": {"raw_dir": str(tmp_path / "raw2"), "reports_dir": str(tmp_path / "reports2")}}
+    with pytest.raises(ConfigError) as exc:
+        stage.gate_reference(stage.later_iteration_config(for_iteration({**cfg, "iteration2": block}, 2)))
+    keys = [k for k, _ in exc.value.problems]
+    assert "select_model.probe.frames" in keys and "collect.warmup_frames" in keys, keys
+    assert not (tmp_path / "reports2").exists()
