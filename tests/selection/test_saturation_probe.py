@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.selection.saturation_probe import ProbeConfig, _longest_run, settings_at, start_frames
+from expoctl.selection.saturation_probe import ProbeConfig, _longest_run, settings_at, start_frames, summary_line
 
 
 @pytest.mark.parametrize("d,key", [
@@ -112,8 +112,9 @@ def test_a_camera_stuck_at_the_longest_exposure_and_highest_gain_fails(probe):
     p, _ = probe
     stuck = make_controller("fixed", {"mode": "manual", "gain_db": 30.0, "exposure_us": 30000.0})
     result = p.run(stuck)
-    assert not result["passes"] and result["worst_saturated_frac"] == 1.0
+    assert not result["passes"] and result["worst_saturated_frac"] == 1.0 and result["fails_on"] == ["white"]
     assert all(r["final_saturated_frac"] == 1.0 for r in result["starts"]["open_road"])
+    assert summary_line("stuck", result).endswith("FAILS (white fixed point)")
 
 
 def test_a_camera_stuck_at_the_shortest_exposure_and_lowest_gain_fails_on_the_dark_side(probe):
@@ -133,8 +134,12 @@ def test_a_camera_stuck_at_the_shortest_exposure_and_lowest_gain_fails_on_the_da
         p.cfg = replace(saved, max_dark_fraction=0.5)
         result = p.run(make_controller("fixed", stuck))
         assert all(r["final_offset_ev"] < -7.5 and r["final_dark_frac"] > 0.5 for r in result["starts"]["tunnel"])
-        assert result["worst_saturated_frac"] == 0.0 and not result["passes"]
+        assert result["worst_saturated_frac"] == 0.0 and not result["passes"] and result["fails_on"] == ["black"]
+        black = f"{100 * result['worst_dark_frac']:.0f} % black"
+        assert summary_line("stuck", result).endswith(f"worst 0 % white, {black}: FAILS (black fixed point)")
         p.cfg = replace(saved, max_dark_fraction=None)
-        assert p.run(make_controller("fixed", stuck))["passes"]
+        result = p.run(make_controller("fixed", stuck))
+        assert result["passes"] and result["fails_on"] == []
+        assert summary_line("stuck", result).endswith(": passes")
     finally:
         p.cfg = saved

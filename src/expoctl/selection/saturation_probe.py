@@ -163,7 +163,8 @@ class SaturationProbe:
 
     def run(self, controller: Controller) -> dict:
         """{start name: [per offset: k_ev, start/final offset (EV), mean first step (EV/frame), final clipped
-        and black shares, per-frame offsets]} plus `worst_saturated_frac`, `worst_dark_frac` and `passes`."""
+        and black shares, per-frame offsets]} plus `worst_saturated_frac`, `worst_dark_frac`, `fails_on` (the lines crossed: "white",
+        "black") and `passes`."""
         pc = self.cfg
         out: dict = {"starts": {}}
         for name, st in self.starts.items():
@@ -180,8 +181,11 @@ class SaturationProbe:
         rows = [r for rows in out["starts"].values() for r in rows]
         out["worst_saturated_frac"] = worst = max(r["final_saturated_frac"] for r in rows)
         out["worst_dark_frac"] = darkest = max(r["final_dark_frac"] for r in rows)
-        out["passes"] = bool(worst < pc.max_saturated_fraction
-                             and (pc.max_dark_fraction is None or darkest < pc.max_dark_fraction))
+        # which line a failing network crossed, so a log line can say whether it ends white or black
+        out["fails_on"] = ((["white"] if worst >= pc.max_saturated_fraction else [])
+                           + (["black"] if pc.max_dark_fraction is not None and darkest >= pc.max_dark_fraction
+                              else []))
+        out["passes"] = not out["fails_on"]
         return out
 
 
@@ -212,7 +216,7 @@ def summary_line(name: str, result: dict) -> str:
     for start, rows in result["starts"].items():
         cells.append(f"{start} " + ", ".join(f"{r['k_ev']:+g}→{r['final_offset_ev']:+.1f} EV "
                                              f"{100 * r['final_saturated_frac']:.0f} % white "
-                                             f"{100 * r.get('final_dark_frac', 0.0):.0f} % black" for r in rows))
-    verdict = "passes" if result["passes"] else "FAILS (saturated fixed point)"
+                                             f"{100 * r['final_dark_frac']:.0f} % black" for r in rows))
+    verdict = "passes" if result["passes"] else f"FAILS ({' and '.join(result['fails_on'])} fixed point)"
     return (f"{name}: " + "; ".join(cells) + f"; worst {100 * result['worst_saturated_frac']:.0f} % white, "
-            f"{100 * result.get('worst_dark_frac', 0.0):.0f} % black: {verdict}")
+            f"{100 * result['worst_dark_frac']:.0f} % black: {verdict}")
