@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from expoctl.controllers.learned import LearnedController  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from expoctl.evaluation.inputs import EvaluationInputs  # noqa: E402
-from expoctl.selection.saturation_probe import ProbeConfig, make_probe  # noqa: E402
+from expoctl.selection.saturation_probe import ProbeConfig, make_probe, verdict  # noqa: E402
 from bench_meta import run_metadata  # noqa: E402
 
 
@@ -71,11 +71,10 @@ def main() -> int:
             cells = [f"{r['final_offset_ev']:+5.1f}/{r['mean_step_first_ev']:+5.2f}/{r['final_saturated_frac']:4.2f}"
                      for r in rows]
             print(f"{str(ckpt):34s} {name:9s} " + " ".join(f"{c:>16s}" for c in cells))
-        verdict = "passes" if result["passes"] else f"FAILS: a {' and '.join(result['fails_on'])} fixed point"
         dark_line = "off" if pcfg.max_dark_fraction is None else f"{pcfg.max_dark_fraction:.2f}"
         print(f"{'':34s} worst clipped share {result['worst_saturated_frac']:.2f} "
               f"(select_model's line {pcfg.max_saturated_fraction:.2f}), worst black share "
-              f"{result['worst_dark_frac']:.2f} (line {dark_line}): {verdict}")
+              f"{result['worst_dark_frac']:.2f} (line {dark_line}): {verdict(result)}")
         networks[str(ckpt)] = {**result["starts"], "worst_saturated_frac": result["worst_saturated_frac"],
                                "worst_dark_frac": result["worst_dark_frac"], "fails_on": result["fails_on"],
                                "passes": result["passes"]}

@@ -163,8 +163,8 @@ class SaturationProbe:
 
     def run(self, controller: Controller) -> dict:
         """{start name: [per offset: k_ev, start/final offset (EV), mean first step (EV/frame), final clipped
-        and black shares, per-frame offsets]} plus `worst_saturated_frac`, `worst_dark_frac`, `fails_on` (the lines crossed: "white",
-        "black") and `passes`."""
+        and black shares, per-frame offsets]} plus `worst_saturated_frac`, `worst_dark_frac`, `fails_on` (the lines
+        crossed: "white", "black") and `passes`."""
         pc = self.cfg
         out: dict = {"starts": {}}
         for name, st in self.starts.items():
@@ -210,6 +210,11 @@ def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Con
     return {name: probe.run(factory()) for name, factory in controllers.items()}
 
 
+def verdict(result: dict) -> str:
+    """'passes', or which fixed point made a probe result fail."""
+    return "passes" if result["passes"] else f"FAILS ({' and '.join(result['fails_on'])} fixed point)"
+
+
 def summary_line(name: str, result: dict) -> str:
     """One human-readable line: final offset / clipped / black share per start and offset, and the verdict."""
     cells = []
@@ -217,6 +222,5 @@ def summary_line(name: str, result: dict) -> str:
         cells.append(f"{start} " + ", ".join(f"{r['k_ev']:+g}→{r['final_offset_ev']:+.1f} EV "
                                              f"{100 * r['final_saturated_frac']:.0f} % white "
                                              f"{100 * r['final_dark_frac']:.0f} % black" for r in rows))
-    verdict = "passes" if result["passes"] else f"FAILS ({' and '.join(result['fails_on'])} fixed point)"
     return (f"{name}: " + "; ".join(cells) + f"; worst {100 * result['worst_saturated_frac']:.0f} % white, "
-            f"{100 * result['worst_dark_frac']:.0f} % black: {verdict}")
+            f"{100 * result['worst_dark_frac']:.0f} % black: {verdict(result)}")
