@@ -27,7 +27,7 @@ STAGE_KEYS: dict[str, list[str]] = {
     "features": ["features", "paths.frames", "paths.features", "paths.matches"],
     "labels": ["labels", "paths.frames", "paths.features", "paths.matches", "paths.labels", "paths.reports_dir"],
     "samples": ["samples", "paths.frames", "paths.labels", "paths.samples"],
-    "train": ["seed", "model", "train", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
+    "train": ["seed", "model", "train", "sensor", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
               "paths.reports_dir"],
     # select_model reads every iteration's enabled flag and model path: the candidates
     "select_model": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "select_model",

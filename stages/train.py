@@ -1,6 +1,7 @@
 """train stage: samples + image store → models/controller.pt, models/controller.onnx, reports/train.json.
 
-Reads only `seed`, `model`, `train` and its paths from configs/resolved.yaml. Per-epoch metrics go to the stage's
+Reads only `seed`, `model`, `train`, `sensor` (the camera response, for `train.exposure_shift_probability`) and its
+paths from configs/resolved.yaml. Per-epoch metrics go to the stage's
 MLflow run; the final metrics put the validation error (gain in dB, exposure in EV) next to the constant-predictor
 baseline; the model is logged with mlflow.pytorch.log_model.
 
@@ -55,9 +56,23 @@ def configs(cfg: dict) -> tuple[ModelConfig, TrainConfig, int]:
     return model_cfg, train_cfg, seed
 
 
+def camera_response(cfg: dict, train_cfg: TrainConfig):
+    """The camera response the stored images were encoded with (the `sensor` block), when synthetic over-exposure
+    needs it; None otherwise."""
+    from expoctl.camera.sensor import SensorConfig
+    from expoctl.errors import ConfigError
+
+    if train_cfg.exposure_shift_probability == 0:
+        return None
+    if not isinstance(cfg.get("sensor"), dict):
+        raise ConfigError("sensor", "missing: train.exposure_shift_probability > 0 needs the camera response")
+    return SensorConfig.from_dict(cfg["sensor"], "sensor").response()
+
+
 def train_from_config(cfg: dict, on_epoch=None, sets=None):
     """Load data (unless `sets` given) and fit; shared by this stage and the sweep. Returns (result, sets, configs)."""
     model_cfg, train_cfg, seed = configs(cfg)
+    response = camera_response(cfg, train_cfg)  # before the data load: a config problem costs nothing
     paths = cfg["paths"]
     if sets is None:
         sets = load_sample_sets_from_files(_path(paths["samples"]), _path(paths["frames"]), _path(paths["images_dir"]),
@@ -65,7 +80,8 @@ def train_from_config(cfg: dict, on_epoch=None, sets=None):
     for split in ("train", "validation"):
         if split not in sets:
             raise InputError(f"{paths['samples']}: no samples with split '{split}'")
-    result = fit(model_cfg, train_cfg, sets["train"], sets["validation"], seed, on_epoch=on_epoch, log=log.info)
+    result = fit(model_cfg, train_cfg, sets["train"], sets["validation"], seed, on_epoch=on_epoch, log=log.info,
+                 response=response)
     return result, sets, (model_cfg, train_cfg, seed)
 
 

@@ -56,10 +56,13 @@ def norm_to_gain(gain_norm):
     return GAIN_DB_MIN + g * (GAIN_DB_MAX - GAIN_DB_MIN)
 
 
-def norm_to_exposure(exposure_norm, scale: str = "linear"):
-    """[0, 1] → exposure in µs (inverse of `exposure_to_norm` with the same scale); inputs are clamped to [0, 1] first."""
+def norm_to_exposure(exposure_norm, scale: str = "linear", clamp: bool = True):
+    """[0, 1] → exposure in µs (inverse of `exposure_to_norm` with the same scale); inputs are clamped to [0, 1] first
+    (network outputs are unbounded) unless `clamp` is false (a settings plane of a sensor exposure below 75 µs)."""
     _check_scale(scale)
-    e = np.clip(np.asarray(exposure_norm, dtype=np.float64), 0.0, 1.0)
+    e = np.asarray(exposure_norm, dtype=np.float64)
+    if clamp:
+        e = np.clip(e, 0.0, 1.0)
     if scale == "log":
         return np.exp2(_LOG2_MIN + e * (_LOG2_MAX - _LOG2_MIN))
     return EXPOSURE_US_MIN + e * (EXPOSURE_US_MAX - EXPOSURE_US_MIN)

@@ -7,7 +7,9 @@ step share their frames, so the cache holds each frame once. A batch is then an 
 `assemble_input` — no decoding or resizing per sample per epoch.
 
 Augmentation (optional): a horizontal flip shared by the three frames of a sample (flipping them independently
-would invent motion that never happened); gain/exposure planes are constant and unaffected.
+would invent motion that never happened); gain/exposure planes are constant and unaffected. And synthetic
+over-exposure (`expoctl.net.exposure_shift`): the three frames and their settings as the camera would have delivered
+them k EV brighter, the label unchanged.
 
 Exposure scaling: samples.parquet stores targets in the paper's linear scaling (the data contract); the planes and
 targets handed to the network use `exposure_scale` (the model's, `expoctl.camera.ranges`), converted here once.
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -25,6 +28,9 @@ import torch
 from expoctl.camera.ranges import rescale_exposure_norm
 from expoctl.errors import InputError
 from expoctl.net.preprocess import N_FRAMES, as_hw, assemble_input, prepare_frame, settings_to_norm
+
+if TYPE_CHECKING:
+    from expoctl.net.exposure_shift import ExposureShift
 
 SAMPLE_COLUMNS = ("sample_id", "sequence", "frame_id", "cam_t", "cam_t1", "cam_t2",
                   "target_gain_norm", "target_exposure_norm", "split")
@@ -50,14 +56,21 @@ class SampleSet:
     def __len__(self) -> int:
         return int(self.frame_idx.shape[0])
 
-    def batch(self, idx, flip: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Samples `idx` → (inputs (B, 15, h, w) float32, targets (B, 2)). `flip`: (B,) bool, mirror those samples."""
+    def batch(self, idx, flip: torch.Tensor | None = None, shift_ev: torch.Tensor | None = None,
+              shifter: "ExposureShift | None" = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Samples `idx` → (inputs (B, 15, h, w) float32, targets (B, 2)). `flip`: (B,) bool, mirror those samples.
+        `shift_ev`: (B,) EV ≥ 0, show those samples brighter by `shifter` (`expoctl.net.exposure_shift`)."""
         idx = torch.as_tensor(idx, dtype=torch.long)
         imgs = self.frames[self.frame_idx[idx]]  # (B, 3, 3, h, w)
         if flip is not None and bool(flip.any()):
             imgs = imgs.clone()
             imgs[flip] = torch.flip(imgs[flip], dims=[-1])
-        return assemble_input(imgs, self.gain_norm[idx], self.exposure_norm[idx]), self.targets[idx]
+        gain, exposure = self.gain_norm[idx], self.exposure_norm[idx]
+        if shift_ev is not None and bool((shift_ev > 0).any()):
+            if shifter is None or shifter.exposure_scale != self.exposure_scale:
+                raise ValueError("a shifted batch needs an ExposureShift with the samples' exposure scale")
+            imgs, gain, exposure = shifter.apply(imgs, gain, exposure, shift_ev)
+        return assemble_input(imgs, gain, exposure), self.targets[idx]
 
 
 @torch.no_grad()

@@ -44,6 +44,8 @@ from torch import nn
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.net.follow import camera_follow
 from expoctl.net.dataset import SampleSet, predict
+from expoctl.net.exposure_shift import MAX_SHIFT_EV, ExposureShift, draw_shifts
+from expoctl.camera.response import Response
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
 
@@ -66,6 +68,10 @@ class TrainConfig:
     train_subset: str = "fixed"
     max_validation_samples: int | None = None
     consistency_weight: float = 0.0  # λ of the camera-consistency term (module doc); 0 = the paper's loss
+    # synthetic over-exposure (expoctl.net.exposure_shift): this share of training samples, each k ~ U[exposure_shift_ev]
+    # EV brighter; 0 = the paper's data
+    exposure_shift_probability: float = 0.0
+    exposure_shift_ev: tuple[float, float] = (0.0, 6.0)
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
@@ -80,9 +86,15 @@ class TrainConfig:
             for k in ("batch_size", "epochs", "patience", "num_threads", "eval_batch_size"):
                 if k in d:
                     d[k] = int(d[k])
-            for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight"):
+            for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight",
+                      "exposure_shift_probability"):
                 if k in d:
                     d[k] = float(d[k])
+            if "exposure_shift_ev" in d:
+                v = d["exposure_shift_ev"]
+                if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 2:
+                    raise ValueError(f"exposure_shift_ev must be two numbers [low, high] in EV, got {v!r}")
+                d["exposure_shift_ev"] = (float(v[0]), float(v[1]))
             for k in ("max_train_samples", "max_validation_samples"):
                 if d.get(k) is not None:
                     d[k] = int(d[k])
@@ -104,6 +116,11 @@ class TrainConfig:
             ("flip_prob", 0.0 <= self.flip_prob <= 1.0, "must be in [0, 1]"),
             ("consistency_weight", math.isfinite(self.consistency_weight) and self.consistency_weight >= 0,
              "must be a finite number ≥ 0"),
+            ("exposure_shift_probability", 0.0 <= self.exposure_shift_probability <= 1.0, "must be in [0, 1]"),
+            ("exposure_shift_ev", all(math.isfinite(v) for v in self.exposure_shift_ev)
+             and 0.0 <= self.exposure_shift_ev[0] <= self.exposure_shift_ev[1] <= MAX_SHIFT_EV,
+             f"must be [low, high] EV with 0 ≤ low ≤ high ≤ {MAX_SHIFT_EV:.2f} (the settings range; shifts only "
+             "brighten, expoctl.net.exposure_shift)"),
             ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
@@ -219,8 +236,16 @@ def _subset(n: int, limit: int | None, rng: np.random.Generator) -> np.ndarray:
 
 
 def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: SampleSet, seed: int,
-        on_epoch: Callable[[int, dict], None] | None = None, log: Callable[[str], None] | None = None) -> TrainResult:
-    """Train on `train`, early-stop on `validation` loss, return the best model and metrics (see module doc)."""
+        on_epoch: Callable[[int, dict], None] | None = None, log: Callable[[str], None] | None = None,
+        response: Response | None = None) -> TrainResult:
+    """Train on `train`, early-stop on `validation` loss, return the best model and metrics (see module doc).
+    `response`: the camera response the images were encoded with, needed for `exposure_shift_probability` > 0."""
+    shifter = None
+    if cfg.exposure_shift_probability > 0:
+        if response is None:
+            raise ConfigError("train.exposure_shift_probability",
+                              "synthetic over-exposure needs the camera response (the sensor block)")
+        shifter = ExposureShift(response, train.exposure_scale)
     if tuple(train.input_hw) != tuple(model_cfg.input_size):
         raise ConfigError("model.input_size", f"{model_cfg.input_size} but the data were prepared at {train.input_hw}")
     for data in (train, validation):
@@ -260,6 +285,9 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
         if partners is None:  # (with consistency pairs, the batches mark what they draw)
             seen[train_rows] = True
         flips = torch.rand(len(perm), generator=gen) < cfg.flip_prob
+        # drawn only when on, so the paper's configuration keeps its random stream
+        shifts = (draw_shifts(len(perm), cfg.exposure_shift_probability, cfg.exposure_shift_ev, gen)
+                  if shifter is not None else torch.zeros(len(perm)))
         net.train()
         t0 = time.perf_counter()
         loss_sum, n_sum = 0.0, 0
@@ -267,16 +295,16 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
             glob = slice(start, start + cfg.batch_size)
             if len(perm[glob]) < 2 * world:
                 break  # batch norm needs ≥ 2 samples per process; drop a tiny remainder
-            rows, flip = perm[glob][rank::world], flips[glob][rank::world]
+            rows, flip, shift = perm[glob][rank::world], flips[glob][rank::world], shifts[glob][rank::world]
             if partners is None:
-                x, y = train.batch(rows, flip)
+                x, y = train.batch(rows, flip, shift, shifter)
                 loss = weighted_l1(net(x), y, cfg.epsilon)
             else:  # first half: drawn samples; second half: their partners, same flips (module doc)
                 half = len(rows) // 2
-                anchors, flip = rows[:half], flip[:half]
+                anchors, flip, shift = rows[:half], flip[:half], shift[:half]
                 rows = np.concatenate([anchors, partners[anchors]])
                 seen[rows] = True
-                x, y = train.batch(rows, torch.cat([flip, flip]))
+                x, y = train.batch(rows, torch.cat([flip, flip]), torch.cat([shift, shift]), shifter)
                 pred = net(x)
                 loss = (weighted_l1(pred, y, cfg.epsilon)
                         + cfg.consistency_weight * weighted_l1(pred[:half], pred[half:], cfg.epsilon))
