@@ -27,6 +27,7 @@ def make_cfg(tmp: Path, **train) -> dict:
     p = make_synthetic_dataset(tmp / "data", n_sequences=4, n_frames=10, hw=(32, 32), seed=0)
     return {
         "seed": 0,
+        "sensor": {},  # the defaults' response (read only with train.exposure_shift_probability > 0)
         "model": {"input_size": 32, "conv_widths": [8, 8, 16, 16], "conv_kernels": [3, 3, 3], "pool": 2,
                   "fc_widths": [16, 8, 8], "dropout": 0.1},
         "train": {"lr": 3e-3, "batch_size": 32, "epochs": 3, "patience": 5, "num_threads": 1,
@@ -77,6 +78,23 @@ def test_bad_config_fails_before_work(tmp_path):
     with pytest.raises(ConfigError, match="train.lr"):
         stage.run(cfg, None)
     assert not (tmp_path / "models").exists()
+
+
+def test_exposure_shift_reads_the_sensor_response(tmp_path):
+    cfg = make_cfg(tmp_path, exposure_shift_probability=0.25)
+    del cfg["sensor"]
+    with pytest.raises(ConfigError, match="sensor"):  # no sensor block: named, before any work
+        stage.run(cfg, None)
+    assert not (tmp_path / "models").exists()
+    cfg["sensor"] = {"response_curve": "cubic"}
+    with pytest.raises(ConfigError, match="sensor.response_curve"):
+        stage.run(cfg, None)
+    cfg["sensor"] = {"response_curve": "gamma", "response_gamma": 1.8}
+    response = stage.camera_response(cfg, stage.configs(cfg)[1])
+    assert response.curve == "gamma" and response.gamma_rgb.tolist() == [1.8] * 3
+    cfg["train"]["exposure_shift_probability"] = 0.0  # off: the sensor block is not read
+    del cfg["sensor"]
+    assert stage.camera_response(cfg, stage.configs(cfg)[1]) is None
 
 
 WORKER = textwrap.dedent("""

@@ -36,8 +36,9 @@ MAX_SHIFT_EV = math.log2(EXPOSURE_US_MAX / 75.0) + (GAIN_DB_MAX - GAIN_DB_MIN) /
 
 
 def encoding_thresholds(response: Response, iterations: int = 60) -> np.ndarray:
-    """(256, 3) float64: per channel, the smallest linear signal the response encodes to at least each code
-    (bisection on `Response.linear_to_8bit`, so the encoding below agrees with the camera's own)."""
+    """(256, 3) float64: per channel, the smallest linear signal in [0, 1] the response encodes to at least each code
+    (bisection on `Response.linear_to_8bit`, so the encoding below agrees with the camera's own); inf for a code
+    that no signal up to full scale reaches."""
     codes = np.arange(256, dtype=np.float64)[:, None]
     lo, hi = np.zeros((256, 3)), np.ones((256, 3))
     for _ in range(iterations):
@@ -45,7 +46,11 @@ def encoding_thresholds(response: Response, iterations: int = 60) -> np.ndarray:
         at_least = response.linear_to_8bit(mid) >= codes
         hi = np.where(at_least, mid, hi)
         lo = np.where(at_least, lo, mid)
-    hi[0] = 0.0  # every signal encodes to at least code 0
+    code = codes[:, 0][:, None]
+    black = response.linear_to_8bit(np.zeros((1, 3)))[0]  # above 0 with a positive pedestal
+    hi[code <= black[None, :]] = 0.0  # every signal reaches these
+    full_scale = response.linear_to_8bit(np.ones((1, 3)))[0]  # below 255 with a white balance < 1
+    hi[code > full_scale[None, :]] = np.inf  # … and none these
     return hi
 
 

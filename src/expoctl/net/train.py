@@ -14,6 +14,9 @@ The complement, not a random other combination: three of a sample's seven siblin
 predictor (where the residual network starts) already agrees on those, so random partners pull towards holding
 (measured: follow 0.50 → 0.73 on seed 2's iteration 1). Partners may lie outside a `max_train_samples` subset (same
 time step, same label). Same gradient steps and samples per epoch as λ = 0, so the cost per epoch is unchanged.
+Synthetic over-exposure (ours, `exposure_shift_probability` p > 0; 0 = the paper's data): each epoch a share p of
+the training samples is shown k ~ U[`exposure_shift_ev`] EV brighter, frames and settings planes, with its label
+unchanged (`expoctl.net.exposure_shift`); consistency partners share their anchor's k. Validation is never shifted.
 Errors in physical units, as the deployed controller would see them (outputs clamped to [0, 1], then unscaled):
 gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The constant predictor is the per-output median
 of the training targets (the L1-optimal constant); the model's errors are reported next to it. A second, stronger
