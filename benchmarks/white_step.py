@@ -1,0 +1,76 @@
+"""What a trained network commands on a clipped frame: its step (EV) on an all-white and an all-black input, over a
+grid of input settings.
+
+    .venv/bin/python benchmarks/white_step.py models/controller.pt [more.pt …] [--out FILE]
+
+An all-white frame (every code 255, in all three input frames) says only "overexposed": the next setting must be
+darker, whatever the settings planes say. A step ≥ 0 there means a white frame at those settings is an absorbing
+state of the closed loop, which `benchmarks/saturation_recovery.py` (the select_model probe) finds from a +6 EV start.
+A black frame is the mirror image. Open loop, no simulator, a few milliseconds per network. The step is
+output − input exposure product (exposure time and gain) in EV, with the output clamped to the network's range as the
+deployed controller clamps it. Writes benchmarks/results/white_step.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from expoctl.camera.ranges import exposure_value_ev, norm_to_exposure, norm_to_gain  # noqa: E402
+from expoctl.io import write_json  # noqa: E402
+from expoctl.net.checkpoint import load_checkpoint  # noqa: E402
+from expoctl.net.preprocess import N_FRAMES, assemble_input, settings_to_norm  # noqa: E402
+
+from bench_meta import run_metadata  # noqa: E402
+
+GAINS_DB = (0.0, 6.0, 12.0, 18.0, 24.0)
+EXPOSURES_US = (200.0, 500.0, 2000.0, 5000.0, 10000.0, 20000.0, 30000.0)
+
+
+def step_map(model, scale: str, hw: tuple[int, int], code: int) -> np.ndarray:
+    """(len(GAINS_DB), len(EXPOSURES_US)) EV: the network's step on uniform frames of `code` at each setting."""
+    g, e = np.meshgrid(GAINS_DB, EXPOSURES_US, indexing="ij")
+    gn, en = settings_to_norm(np.repeat(g.reshape(-1, 1), N_FRAMES, 1), np.repeat(e.reshape(-1, 1), N_FRAMES, 1), scale)
+    frames = torch.full((gn.shape[0], N_FRAMES, 3, *hw), code, dtype=torch.uint8)
+    with torch.no_grad():
+        out = model(assemble_input(frames, torch.from_numpy(gn), torch.from_numpy(en))).numpy().astype(np.float64)
+    out_ev = exposure_value_ev(norm_to_gain(out[:, 0]), norm_to_exposure(out[:, 1], scale))
+    return (out_ev - exposure_value_ev(g.reshape(-1), e.reshape(-1))).reshape(g.shape)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoints", nargs="+", type=Path)
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "white_step.json")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    rows = {}
+    for path in args.checkpoints:
+        model, ckpt = load_checkpoint(path)
+        scale = ckpt["model_config"].get("exposure_scale", "linear")
+        hw = tuple(ckpt["input_hw"])
+        white, black = step_map(model, scale, hw, 255), step_map(model, scale, hw, 0)
+        rows[str(path)] = {"white_step_ev": white.round(3).tolist(), "black_step_ev": black.round(3).tolist(),
+                           "white_max_step_ev": float(white.max()), "black_min_step_ev": float(black.min())}
+        print(f"{path}: step on an all-white input (EV), rows gain dB, columns exposure µs")
+        print("  gain \\ µs " + "".join(f"{e:>8.0f}" for e in EXPOSURES_US))
+        for gdb, row in zip(GAINS_DB, white):
+            print(f"  {gdb:9.0f} " + "".join(f"{v:+8.2f}" for v in row))
+        print(f"  largest step on white {white.max():+.2f} EV (≥ 0: an absorbing white state), "
+              f"smallest on black {black.min():+.2f} EV (≤ 0: an absorbing black state)")
+    write_json({"gains_db": list(GAINS_DB), "exposures_us": list(EXPOSURES_US), "networks": rows,
+                "seconds": round(time.perf_counter() - t0, 2), **run_metadata()}, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
