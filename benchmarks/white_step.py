@@ -18,33 +18,17 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import torch
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from expoctl.camera.ranges import exposure_value_ev, norm_to_exposure, norm_to_gain  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 from expoctl.net.checkpoint import load_checkpoint  # noqa: E402
-from expoctl.net.preprocess import N_FRAMES, assemble_input, settings_to_norm  # noqa: E402
+from expoctl.net.clipped_frames import GRID_EXPOSURES_US, GRID_GAINS_DB, uniform_frame_steps  # noqa: E402
 
 from bench_meta import run_metadata  # noqa: E402
 
-GAINS_DB = (0.0, 6.0, 12.0, 18.0, 24.0)
-EXPOSURES_US = (200.0, 500.0, 2000.0, 5000.0, 10000.0, 20000.0, 30000.0)
-
-
-def step_map(model, scale: str, hw: tuple[int, int], code: int) -> np.ndarray:
-    """(len(GAINS_DB), len(EXPOSURES_US)) EV: the network's step on uniform frames of `code` at each setting."""
-    g, e = np.meshgrid(GAINS_DB, EXPOSURES_US, indexing="ij")
-    gn, en = settings_to_norm(np.repeat(g.reshape(-1, 1), N_FRAMES, 1), np.repeat(e.reshape(-1, 1), N_FRAMES, 1), scale)
-    frames = torch.full((gn.shape[0], N_FRAMES, 3, *hw), code, dtype=torch.uint8)
-    with torch.no_grad():
-        out = model(assemble_input(frames, torch.from_numpy(gn), torch.from_numpy(en))).numpy().astype(np.float64)
-    out_ev = exposure_value_ev(norm_to_gain(out[:, 0]), norm_to_exposure(out[:, 1], scale))
-    return (out_ev - exposure_value_ev(g.reshape(-1), e.reshape(-1))).reshape(g.shape)
+GAINS_DB, EXPOSURES_US = GRID_GAINS_DB, GRID_EXPOSURES_US
 
 
 def main() -> None:
@@ -58,7 +42,7 @@ def main() -> None:
         model, ckpt = load_checkpoint(path)
         scale = ckpt["model_config"].get("exposure_scale", "linear")
         hw = tuple(ckpt["input_hw"])
-        white, black = step_map(model, scale, hw, 255), step_map(model, scale, hw, 0)
+        white, black = (uniform_frame_steps(model, code, hw, scale).numpy() for code in (255, 0))
         rows[str(path)] = {"white_step_ev": white.round(3).tolist(), "black_step_ev": black.round(3).tolist(),
                            "white_max_step_ev": float(white.max()), "black_min_step_ev": float(black.min())}
         print(f"{path}: step on an all-white input (EV), rows gain dB, columns exposure µs")

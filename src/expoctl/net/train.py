@@ -17,6 +17,10 @@ time step, same label). Same gradient steps and samples per epoch as λ = 0, so 
 Synthetic over-exposure (ours, `exposure_shift_probability` p > 0; 0 = the paper's data): each epoch a share p of
 the training samples is shown k ~ U[`exposure_shift_ev`] EV brighter, frames and settings planes, with its label
 unchanged (`expoctl.net.exposure_shift`); consistency partners share their anchor's k. Validation is never shifted.
+Clipped-frame prior (ours, `clipped_frame_weight` > 0; 0 = the paper's loss): a hinge that makes the step on an
+all-white input darker and on an all-black input brighter than the real camera's AE limits, at drawn settings
+(`expoctl.net.clipped_frames`); it is part of the training loss the history reports. Every run reports the steps on
+such inputs over a settings grid (`white_step_max_ev`, `black_step_min_ev`).
 Errors in physical units, as the deployed controller would see them (outputs clamped to [0, 1], then unscaled):
 gain in dB (mean |ĝ − g*|), exposure in EV (mean |log2(ê / e*)|). The constant predictor is the per-output median
 of the training targets (the L1-optimal constant); the model's errors are reported next to it. A second, stronger
@@ -48,6 +52,7 @@ from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.net.follow import camera_follow
 from expoctl.net.dataset import SampleSet, predict
 from expoctl.net.exposure_shift import MAX_SHIFT_EV, ExposureShift, draw_shifts
+from expoctl.net.clipped_frames import clipped_frame_loss, uniform_frame_steps
 from expoctl.camera.response import Response
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
@@ -75,6 +80,11 @@ class TrainConfig:
     # EV brighter; 0 = the paper's data
     exposure_shift_probability: float = 0.0
     exposure_shift_ev: tuple[float, float] = (0.0, 6.0)
+    # clipped-frame prior (expoctl.net.clipped_frames): weight of the hinge on all-white / all-black inputs; 0 = the
+    # paper's loss. Per batch clipped_frame_samples white and as many black inputs; margins (white, black) in EV
+    clipped_frame_weight: float = 0.0
+    clipped_frame_samples: int = 4
+    clipped_frame_margin_ev: tuple[float, float] = (0.178, 0.51)
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
@@ -86,18 +96,19 @@ class TrainConfig:
             if k not in types:
                 raise ConfigError(f"{prefix}.{k}", f"unknown key (known: {sorted(types)})")
         try:
-            for k in ("batch_size", "epochs", "patience", "num_threads", "eval_batch_size"):
+            for k in ("batch_size", "epochs", "patience", "num_threads", "eval_batch_size", "clipped_frame_samples"):
                 if k in d:
                     d[k] = int(d[k])
             for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight",
-                      "exposure_shift_probability"):
+                      "exposure_shift_probability", "clipped_frame_weight"):
                 if k in d:
                     d[k] = float(d[k])
-            if "exposure_shift_ev" in d:
-                v = d["exposure_shift_ev"]
-                if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 2:
-                    raise ValueError(f"exposure_shift_ev must be two numbers [low, high] in EV, got {v!r}")
-                d["exposure_shift_ev"] = (float(v[0]), float(v[1]))
+            for k in ("exposure_shift_ev", "clipped_frame_margin_ev"):
+                if k in d:
+                    v = d[k]
+                    if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 2:
+                        raise ValueError(f"{k} must be two numbers in EV, got {v!r}")
+                    d[k] = (float(v[0]), float(v[1]))
             for k in ("max_train_samples", "max_validation_samples"):
                 if d.get(k) is not None:
                     d[k] = int(d[k])
@@ -124,6 +135,11 @@ class TrainConfig:
              and 0.0 <= self.exposure_shift_ev[0] <= self.exposure_shift_ev[1] <= MAX_SHIFT_EV,
              f"must be [low, high] EV with 0 ≤ low ≤ high ≤ {MAX_SHIFT_EV:.2f} (the settings range; shifts only "
              "brighten, expoctl.net.exposure_shift)"),
+            ("clipped_frame_weight", math.isfinite(self.clipped_frame_weight) and self.clipped_frame_weight >= 0,
+             "must be a finite number ≥ 0"),
+            ("clipped_frame_samples", self.clipped_frame_samples >= 1, "must be ≥ 1"),
+            ("clipped_frame_margin_ev", all(math.isfinite(v) and 0.0 <= v <= 2.0 for v in self.clipped_frame_margin_ev),
+             "must be [white, black] EV per frame, each in [0, 2]"),
             ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
@@ -273,6 +289,8 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     torch.manual_seed(seed * 1000 + rank)  # dropout masks differ per process, reproducibly
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
 
+    # the clipped-frame prior's own random stream: the paper's configuration keeps its batches
+    prior_gen = torch.Generator().manual_seed(seed * 7919 + 104729 + rank) if cfg.clipped_frame_weight > 0 else None
     best = (math.inf, -1, None)
     seen = np.zeros(len(train), bool)  # which training samples any epoch drew
     partners = complement_partners(train.time_step, train.cameras) if cfg.consistency_weight > 0 else None
@@ -311,6 +329,10 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
                 pred = net(x)
                 loss = (weighted_l1(pred, y, cfg.epsilon)
                         + cfg.consistency_weight * weighted_l1(pred[:half], pred[half:], cfg.epsilon))
+            if prior_gen is not None:
+                loss = loss + cfg.clipped_frame_weight * clipped_frame_loss(
+                    model, cfg.clipped_frame_samples, cfg.clipped_frame_margin_ev, tuple(train.input_hw),
+                    train.exposure_scale, prior_gen)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -356,10 +378,14 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     hold = metrics_from_sums(error_sums(hold_prediction(validation, val_rows), val_targets, cfg.epsilon,
                                         validation.exposure_scale), cfg.epsilon)
     follow = camera_follow(model, validation, cfg.eval_batch_size)  # the whole split: every c111/c222 pair
+    white = uniform_frame_steps(model, 255, tuple(validation.input_hw), validation.exposure_scale)
+    black = uniform_frame_steps(model, 0, tuple(validation.input_hw), validation.exposure_scale)
     metrics = {
         **{f"val_{k}": v for k, v in val.items()},
         "val_follow": follow["follow"], "val_follow_bias_ev": follow["bias_ev"],
         "val_implied_offset_ev": follow["implied_offset_ev"],
+        # the step on an all-white (all-black) input over a settings grid: ≥ 0 (≤ 0) somewhere = an absorbing state
+        "white_step_max_ev": float(white.max()), "black_step_min_ev": float(black.min()),
         **{f"baseline_val_{k}": v for k, v in base.items()},
         **{f"hold_val_{k}": v for k, v in hold.items()},
         "baseline_gain_norm": float(const[0]), "baseline_exposure_norm": float(const[1]),
