@@ -28,11 +28,11 @@ import math
 import torch
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from expoctl.net.exposure_shift import DB_PER_EV, MAX_SHIFT_EV
 from expoctl.net.preprocess import N_FRAMES, assemble_input
 
-DB_PER_EV = 20.0 * math.log10(2.0)
 _LOG2_MIN, _LOG2_MAX = math.log2(EXPOSURE_US_MIN), math.log2(EXPOSURE_US_MAX)
-RANGE_EV = _LOG2_MAX - _LOG2_MIN + (GAIN_DB_MAX - GAIN_DB_MIN) / DB_PER_EV  # the whole settings range, 13.6 EV
+RANGE_EV = MAX_SHIFT_EV  # the whole settings range, 13.6 EV
 EXPOSURE_RANGE_EV = _LOG2_MAX - _LOG2_MIN  # 8.64 EV: one unit of the log exposure scale
 
 
