@@ -82,7 +82,41 @@ def gate_reference(cfg: dict) -> tuple[dict, dict]:
     return {**cfg, "collect": {**cfg["collect"], "reference_controller": fallback}}, decision
 
 
+def from_recordings(cfg: dict, tracker) -> None:
+    """collect.source: recordings: the real rig recordings of data/recordings (never a stage's output, so never
+    deleted) are validated and copied into paths.raw_dir; nothing is simulated. A later iteration would need new
+    recordings driven by the previous network on the real camera, so it adds no sequences (say so, loudly)."""
+    from expoctl.io import atomic_dir, write_json
+    from expoctl.raw.recordings import copy_recordings
+    from stages.project import RECORDINGS_DIR
+
+    out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
+    n = cfg.get("iteration", 1)
+    if n > 1:
+        with atomic_dir(out_dir):
+            pass  # an empty raw directory: this iteration adds no data
+        write_json({"iteration": n, "reference_controller": None, "source": "recordings",
+                    "note": "collect.source is recordings: no sequences were recorded for this iteration"},
+                   PROJECT_ROOT / cfg["paths"]["reports_dir"] / REFERENCE_REPORT)
+        log.warning("collect.source is recordings: iteration %d adds no sequences. Record them on the rig with the "
+                    "iteration-%d network as camera 1's reference (expoctl record --reference learned, docs/camera.md)"
+                    " or set iteration%d.enabled=false", n, n - 1, n)
+        tracker.log_metrics({"n_sequences": 0})
+        return
+    t0 = time.perf_counter()
+    summaries = copy_recordings(PROJECT_ROOT / RECORDINGS_DIR, out_dir, progress=log.info)
+    tracker.log_params({"source": "recordings"})
+    tracker.log_metrics({"n_sequences": len(summaries), "n_frame_pairs": sum(s["n_frames"] for s in summaries),
+                         "n_dynamic_sections": sum(s["n_dynamic_sections"] for s in summaries),
+                         "seconds": time.perf_counter() - t0})
+    log.info("%d recorded sequences from %s → %s (nothing simulated)", len(summaries), RECORDINGS_DIR, out_dir)
+
+
 def run(cfg: dict, tracker) -> None:
+    if (cfg.get("collect") or {}).get("source") == "recordings":
+        CollectInputs.from_resolved(cfg)  # the whole config checked, as for a simulated collect
+        from_recordings(cfg, tracker)
+        return
     decision = None
     if cfg.get("iteration", 1) > 1:
         cfg, decision = gate_reference(later_iteration_config(cfg))

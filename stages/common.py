@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 from typing import Any, Callable
 
 from expoctl.errors import InputError
@@ -43,6 +44,7 @@ def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> No
     parser.add_argument("--iteration", type=int, default=1, choices=range(1, LAST_ITERATION + 1))
     args = parser.parse_args()
     name = stage_name(stage, args.iteration)
+    started = time.time()  # an output modified after this was replaced by this run
     logging.basicConfig(level=logging.INFO, format=f"[{name}] %(message)s")
     logging.getLogger("alembic").setLevel(logging.WARNING)
     try:
@@ -50,8 +52,47 @@ def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> No
         with tracked_run(name, cfg) as tracker:
             run(cfg, tracker)
     except InputError as exc:
-        print(f"expoctl {stage}: error: {exc}", file=sys.stderr)
+        print(f"expoctl {stage}: error: {exc}\n{outputs_left(name, started)}", file=sys.stderr)
         sys.exit(2)
     except KeyboardInterrupt:
-        print(f"expoctl {stage}: interrupted; no output was replaced", file=sys.stderr)
+        print(f"expoctl {stage}: interrupted.\n{outputs_left(name, started)}", file=sys.stderr)
         sys.exit(130)
+    except Exception:
+        print(f"expoctl {stage}: failed (a bug: please report the traceback below).\n{outputs_left(name, started)}",
+              file=sys.stderr)
+        raise
+
+
+def outputs_left(dvc_stage: str, started: float) -> str:
+    """What a stage that stopped early leaves. dvc.yaml declares every output `persist: true`, so DVC did not delete
+    them, and every writer is atomic, so none is half-written: each is either as the last run left it or, if this run
+    got as far as writing it (modified after `started`), already replaced."""
+    import datetime
+
+    from stages.dvcfile import declared_outputs
+
+    try:
+        outs = [o.path for o in declared_outputs(PROJECT_ROOT) if o.stage == dvc_stage]
+    except Exception:  # noqa: BLE001 — the message must not hide the original error
+        return "(dvc.yaml could not be read to list its outputs; each is written atomically, so none is half-written.)"
+    if not outs:
+        return "It has no declared outputs."
+    kept, replaced, missing = [], [], []
+    for rel in outs:
+        p = PROJECT_ROOT / rel
+        if not p.exists():
+            missing.append(rel)
+        elif p.stat().st_mtime >= started:
+            replaced.append(rel)
+        else:
+            when = datetime.datetime.fromtimestamp(p.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
+            kept.append(f"{rel} ({when})")
+    lines = []
+    if kept:
+        lines.append("Left as before, not replaced: " + ", ".join(kept) + ".")
+    if replaced:
+        lines.append("Already replaced by this run before it stopped: " + ", ".join(replaced) + ".")
+    if missing:
+        lines.append("Not produced yet: " + ", ".join(missing) + ".")
+    lines.append(f"`dvc status` lists '{dvc_stage}' as changed; the next `dvc repro` runs it again.")
+    return "\n".join(lines)

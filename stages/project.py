@@ -11,6 +11,9 @@ from expoctl.errors import InputError
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 RESOLVED_CONFIG = PROJECT_ROOT / "configs" / "resolved.yaml"
+#: Real rig recordings' home: no stage's output, so `dvc repro` never deletes it (`collect.source: recordings`
+#: copies it into the collect stage's output, data/raw). Relative to the project root.
+RECORDINGS_DIR = "data/recordings"
 
 
 def main_project_root(start: Path = PROJECT_ROOT) -> Path:

@@ -19,6 +19,7 @@ import pandas as pd
 
 from expoctl.config_reader import Section
 from expoctl.errors import InputError
+from expoctl.io import atomic_dir
 from expoctl.evaluation.aggregate import validate_metrics
 from expoctl.evaluation.config import CONTROLLER_NAMES
 from expoctl.report.figures import image_strips, label, nfm_bars, ordered, tunnel_timeline
@@ -267,10 +268,12 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
     }
     for split in ("validation", "test"):
         figs[f"nfm_bars_{split}_dynamic"] = (lambda s: lambda p: nfm_bars(metrics, p, s, "dynamic"))(split)
-    for name, draw in figs.items():
-        p = fig_dir / f"{name}.png"
-        if draw(p):
-            written[name] = p
+    # drawn into a staging directory that replaces reports/figures whole: a figure not drawn this time (no data for
+    # it) does not linger from an earlier run (the output is kept across runs: dvc.yaml `persist`)
+    with atomic_dir(fig_dir) as staging:
+        for name, draw in figs.items():
+            if draw(staging / f"{name}.png"):
+                written[name] = fig_dir / f"{name}.png"
     n_frames = frames.groupby("run_id").size()
     md = ["# Results: closed-loop evaluation in the simulator", "",
           "Every controller drove the simulated camera over the same windows (same route, lighting, sensor and noise "

@@ -41,6 +41,9 @@ from expoctl.sim.closed_loop import RigConfig, RouteScene, clip_sections, make_s
 from expoctl.world.city import WorldConfig
 
 SPLITS = ("train", "validation", "test")
+#: collect.source: `simulator` renders the sequences; `recordings` copies the real rig recordings of data/recordings
+#: instead (expoctl.raw.recordings), so the pipeline trains on real data
+SOURCES = ("simulator", "recordings")
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,7 @@ class CollectConfig:
     sensor_randomisation: float
     n_jobs: int
     splits: dict[str, SplitConfig]
+    source: str = "simulator"
 
     @classmethod
     def from_dict(cls, d: Any, key: str = "collect", problems: Problems | None = None) -> "CollectConfig":
@@ -77,6 +81,7 @@ class CollectConfig:
             sensor_randomisation=r.number("sensor_randomisation", min=0.0, max=0.5),  # spec: 0.1–0.2
             n_jobs=r.integer("n_jobs", min=1),
             splits=_splits(r.section("splits", required=True)),
+            source=r.choice("source", SOURCES, "simulator"),
         )
         r.done()
         return cfg
