@@ -38,7 +38,7 @@ import torch
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.controllers.agae import ln_exposure_product, split_exposure_first
-from expoctl.config_reader import Section
+from expoctl.config_reader import Problems, Section
 from expoctl.controllers.base import Controller, DelayedController, Settings, read_latency_frames
 from expoctl.errors import ConfigError
 from expoctl.net.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
@@ -133,12 +133,24 @@ def make_learned(params: dict) -> Controller:
     `latency_frames` (simulator only): the network's settings computed from frame t expose frame t + latency_frames
     (1: the paper's rig; 2: the calibrated camera's earliest, docs/calibration.md). Train with the same value
     (`labels.latency_frames` follows it), so the labels target the frames the command can still change."""
-    r = Section(params, "controllers.learned")
-    path = r.value("checkpoint", "models/controller.pt")
-    backend = r.value("backend", "torch")  # checked with the checkpoint (onnx needs its .onnx file)
-    nt = r.integer("num_threads", 1, min=1, nullable=True)
-    allocation = r.choice("allocation", ALLOCATIONS, "network")
-    latency = read_latency_frames(r)
-    r.done()
-    ctrl = LearnedController.from_checkpoint(path, num_threads=nt, backend=backend, allocation=allocation)
+    p = read_learned_params(params)
+    latency = p.pop("latency_frames")
+    ctrl = LearnedController.from_checkpoint(**p)
     return ctrl if latency == 1 else DelayedController(ctrl, latency)
+
+
+def read_learned_params(params: dict | None, problems: Problems | None = None) -> dict:
+    """The `controllers.learned` keys, checked without loading the checkpoint (the compose stage checks them before
+    any network exists): {path, num_threads, backend, allocation, latency_frames}. With `problems`, problems are
+    added there for the caller to raise."""
+    r = Section(params, "controllers.learned", problems)
+    out = {
+        "path": r.value("checkpoint", "models/controller.pt"),
+        # whether onnx's .onnx file exists is checked with the checkpoint
+        "backend": r.choice("backend", ("torch", "onnx"), "torch"),
+        "num_threads": r.integer("num_threads", 1, min=1, nullable=True),
+        "allocation": r.choice("allocation", ALLOCATIONS, "network"),
+        "latency_frames": read_latency_frames(r),
+    }
+    r.done()
+    return out

@@ -53,28 +53,27 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "model") -> "ModelConfig":
+        """Every problem at once (ConfigError), each under its own key: a value that does not convert is reported
+        as `model.<key>` and the key's default stands in while the others are validated."""
         d = dict(d or {})
         known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ConfigError(f"{prefix}.{sorted(unknown)[0]}", f"unknown key (known: {sorted(known)})")
+        problems = [(f"{prefix}.{k}", f"unknown key (known: {sorted(known)})") for k in sorted(d) if k not in known]
+        converters = {"input_size": (as_hw, "a size in pixels or [height, width]"), "pool": (int, "an integer"),
+                      "dropout": (float, "a number"), "exposure_scale": (str, "a string"), "output": (str, "a string")}
+        converters.update({k: (_int_tuple, "a list of integers") for k in ("conv_widths", "conv_kernels", "fc_widths")})
+        for k, (convert, what) in converters.items():
+            if k in d:
+                try:
+                    d[k] = convert(d[k])
+                except (TypeError, ValueError):
+                    problems.append((f"{prefix}.{k}", f"must be {what}, got {d.pop(k)!r}"))
+        cfg = cls(**{k: v for k, v in d.items() if k in known})
         try:
-            if "input_size" in d:
-                d["input_size"] = as_hw(d["input_size"])
-            for k in ("conv_widths", "conv_kernels", "fc_widths"):
-                if k in d:
-                    d[k] = tuple(int(v) for v in d[k])
-            if "pool" in d:
-                d["pool"] = int(d["pool"])
-            if "dropout" in d:
-                d["dropout"] = float(d["dropout"])
-            for k in ("exposure_scale", "output"):
-                if k in d:
-                    d[k] = str(d[k])
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(prefix, f"bad value: {exc}") from None
-        cfg = cls(**d)
-        cfg.validate(prefix)
+            cfg.validate(prefix)
+        except ConfigError as exc:
+            problems += exc.problems
+        if problems:
+            raise ConfigError.of(problems)
         return cfg
 
     def to_dict(self) -> dict:
@@ -102,6 +101,12 @@ class ModelConfig:
                                  f"pool {self.pool} (minimum {min_input_size(self.conv_kernels, self.pool)})"))
         if problems:
             raise ConfigError.of([(f"{prefix}.{k}", p) for k, p in problems])
+
+
+def _int_tuple(v) -> tuple[int, ...]:
+    if isinstance(v, (str, bytes)):  # tuple("64") would read as digits
+        raise ValueError(v)
+    return tuple(int(x) for x in v)
 
 
 def final_map_size(n: int, kernels, pool: int) -> int:

@@ -90,32 +90,32 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "train") -> "TrainConfig":
+        """Every problem at once (ConfigError), each under its own key: a value that does not convert is reported
+        as `train.<key>` and the key's default stands in while the others are validated."""
         d = dict(d or {})
         types = {f.name: f.type for f in fields(cls)}
-        for k in list(d):
-            if k not in types:
-                raise ConfigError(f"{prefix}.{k}", f"unknown key (known: {sorted(types)})")
+        problems = [(f"{prefix}.{k}", f"unknown key (known: {sorted(types)})") for k in d if k not in types]
+        converters = {k: (int, "an integer") for k in ("batch_size", "epochs", "patience", "num_threads",
+                                                        "eval_batch_size", "clipped_frame_samples")}
+        converters.update({k: (float, "a number") for k in (
+            "lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight",
+            "exposure_shift_probability", "clipped_frame_weight")})
+        converters.update({k: (_ev_pair, "two numbers in EV") for k in ("exposure_shift_ev", "clipped_frame_margin_ev")})
+        converters.update({k: (_optional_int, "an integer or null") for k in ("max_train_samples",
+                                                                               "max_validation_samples")})
+        for k, (convert, what) in converters.items():
+            if k in d:
+                try:
+                    d[k] = convert(d[k])
+                except (TypeError, ValueError):
+                    problems.append((f"{prefix}.{k}", f"must be {what}, got {d.pop(k)!r}"))
+        cfg = cls(**{k: v for k, v in d.items() if k in types})
         try:
-            for k in ("batch_size", "epochs", "patience", "num_threads", "eval_batch_size", "clipped_frame_samples"):
-                if k in d:
-                    d[k] = int(d[k])
-            for k in ("lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight",
-                      "exposure_shift_probability", "clipped_frame_weight"):
-                if k in d:
-                    d[k] = float(d[k])
-            for k in ("exposure_shift_ev", "clipped_frame_margin_ev"):
-                if k in d:
-                    v = d[k]
-                    if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 2:
-                        raise ValueError(f"{k} must be two numbers in EV, got {v!r}")
-                    d[k] = (float(v[0]), float(v[1]))
-            for k in ("max_train_samples", "max_validation_samples"):
-                if d.get(k) is not None:
-                    d[k] = int(d[k])
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(prefix, f"bad value: {exc}") from None
-        cfg = cls(**d)
-        cfg.validate(prefix)
+            cfg.validate(prefix)
+        except ConfigError as exc:
+            problems += exc.problems
+        if problems:
+            raise ConfigError.of(problems)
         return cfg
 
     def validate(self, prefix: str = "train") -> None:
@@ -152,6 +152,16 @@ class TrainConfig:
         problems = [(f"{prefix}.{key}", f"{problem}, got {getattr(self, key)}") for key, ok, problem in checks if not ok]
         if problems:  # every one at once
             raise ConfigError.of(problems)
+
+
+def _ev_pair(v) -> tuple[float, float]:
+    if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 2:
+        raise ValueError(v)
+    return float(v[0]), float(v[1])
+
+
+def _optional_int(v) -> int | None:
+    return None if v is None else int(v)
 
 
 def weighted_l1(pred: torch.Tensor, target: torch.Tensor, epsilon: float) -> torch.Tensor:

@@ -233,11 +233,21 @@ def city_config(name_or_dict: str | dict, city_dir: str | Path | None = None) ->
             if not isinstance(loaded, dict):
                 raise ConfigError("world.city", f"{path} does not hold a mapping")
             return city_config(loaded, city_dir)
+        if name_or_dict not in CITY_NAMES:
+            raise ConfigError("world.city", f"unknown city {name_or_dict!r}; known cities: "
+                              f"{', '.join(known_city_names(city_dir))} (or pass a dict)")
         cfg = packaged_city(name_or_dict)
     else:
         raise ConfigError("world.city", f"expected a city name or a dict, got {type(name_or_dict).__name__}")
     validate_city(cfg)
     return cfg
+
+
+def known_city_names(city_dir: str | Path | None) -> list[str]:
+    """Every city name `city_config` accepts with `city_dir`: the packaged ones, then the YAML files in `city_dir`
+    (the scenario cities conf/world/cities/underpass.yaml, ramp_tunnel.yaml, …)."""
+    files = sorted(p.stem for p in Path(city_dir).glob("*.yaml")) if city_dir is not None else []
+    return list(CITY_NAMES) + [n for n in files if n not in CITY_NAMES]
 
 
 def resolve_city_name(spec: Any, city_dir: str | None, key: str) -> str:

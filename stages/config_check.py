@@ -1,0 +1,142 @@
+"""Check a composed config before the compose stage writes configs/resolved.yaml.
+
+Every stage checks its own config groups, but only when it runs: a bad `train.lr` would surface after collect,
+ingest, features, labels and samples have run. `check_resolved` builds, in one pass and with one shared `Problems`,
+every typed config group any stage reads, with the same readers the stages use, so `dvc repro` stops at compose
+with every problem named by its dotted key. It only reads configs (and the city YAML files the readers read):
+no checkpoint, no data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from expoctl.config_reader import Problems, Section
+from expoctl.controllers.learned import read_learned_params
+from expoctl.controllers.registry import CONTROLLERS, make_controller
+from expoctl.evaluation.inputs import EvaluationInputs
+from expoctl.features.orb import OrbParams
+from expoctl.features.viso.params import parse_params as viso_params
+from expoctl.labels.samples import SampleConfig
+from expoctl.labels.targets import LabelConfig
+from expoctl.raw.ingest import IngestConfig
+from expoctl.report.results import ReportConfig
+from expoctl.selection.model_selection import SelectConfig
+from expoctl.sim.collect import CollectConfig, CollectInputs, plan_sequences
+from expoctl.sim.oracle import OracleParams
+from expoctl.world.cities import deep_merge, resolve_city_name
+from stages.collect import REFERENCE_GATES
+from stages.keys import LAST_ITERATION
+from stages.project import PROJECT_ROOT
+from stages.train import configs as train_configs
+
+#: The resolved config's top-level keys: conf/config.yaml's groups (its defaults list) and own keys, and what the
+#: scale presets (conf/scale/*.yaml, package _global_) add. tests/stages/test_config_check.py checks it against conf/.
+TOP_LEVEL_KEYS = ("sensor", "world", "rig", "controllers", "collect", "ingest", "features", "labels", "samples",
+                  "model", "train", "select_model", "evaluate", "report", "seed", "paths", "scale_name") + tuple(
+    f"iteration{n}" for n in range(2, LAST_ITERATION + 1))
+#: `paths` (conf/config.yaml); an `iteration<N>.paths` block overrides some of them, all but the final model
+PATH_KEYS = ("raw_dir", "frames", "images_dir", "features", "matches", "labels", "samples", "model", "final_model",
+             "reports_dir")
+ITERATION_PATH_KEYS = tuple(k for k in PATH_KEYS if k != "final_model")
+
+
+def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> None:
+    """Raise one ConfigError naming every problem of the composed config `cfg` (full dotted keys); None if valid.
+    A relative `world.city_dir` is read under `project_root`."""
+    problems = Problems()
+    top = Section(cfg, "", problems)
+    collect = problems.collect(CollectInputs.from_resolved, cfg)  # reader that stops at its end: collected
+    for build, key in ((IngestConfig.from_dict, "ingest"), (LabelConfig.from_dict, "labels"),
+                       (SampleConfig.from_dict, "samples"), (ReportConfig.from_dict, "report")):
+        problems.collect(build, top.value(key, None))
+    problems.collect(train_configs, cfg)  # model, train, seed: as the train stage builds them
+    select = SelectConfig.from_dict(top.value("select_model", None), "select_model", problems)
+    evaluation = EvaluationInputs.from_resolved(cfg, problems)  # evaluate, features, world, rig, sensor, controllers
+    problems.collect(OrbParams.from_dict, evaluation.features.orb)  # evaluate runs both front ends, whatever
+    problems.collect(viso_params, evaluation.features.viso)  # features.frontends says
+    _check_controllers(evaluation.controllers, problems)
+    _check_cities(evaluation, select, project_root, problems)
+    if collect is not None:
+        _check_collect(collect.collect, "collect", problems)
+        problems.collect(plan_sequences, collect, project_root)  # each split with sequences has a valid city
+    paths = top.section("paths", required=True)
+    for name in PATH_KEYS:
+        paths.text(name)
+    paths.done()
+    for n in range(2, LAST_ITERATION + 1):
+        _check_iteration(cfg, n, top, collect, project_root, problems)
+    top.done(TOP_LEVEL_KEYS)
+    # groups read by several stages (world, rig, sensor, seed) are reported once
+    problems.items = list(dict.fromkeys(problems.items))
+    problems.raise_if_any()
+
+
+def _check_controllers(controllers: dict[str, dict], problems: Problems) -> None:
+    """Each `controllers.<name>` through its own factory's checks; the learned one without its checkpoint and the
+    oracle without a scene (both exist only at run time)."""
+    for name, params in controllers.items():
+        if name == "learned":
+            read_learned_params(params, problems)
+        elif name == "oracle":
+            problems.collect(OracleParams.from_dict, params)
+        elif name in CONTROLLERS:
+            problems.collect(make_controller, name, params)
+        else:
+            problems.add(f"controllers.{name}", f"unknown controller (known: {', '.join(sorted(CONTROLLERS))}, "
+                         "oracle)")
+
+
+def _check_collect(ccfg: CollectConfig, key: str, problems: Problems) -> None:
+    """What CollectConfig leaves to the collect run: the reference controller must be one the registry builds."""
+    if ccfg.reference_controller is not None and ccfg.reference_controller not in CONTROLLERS:
+        problems.add(f"{key}.reference_controller", f"unknown controller {ccfg.reference_controller!r} "
+                     f"(known: {', '.join(sorted(CONTROLLERS))})")
+
+
+def _check_cities(evaluation: EvaluationInputs, select: SelectConfig, project_root: Path, problems: Problems) -> None:
+    """Every `world.cities` entry loads (unknown names list every name a user may give), and each city a stage asks
+    for by split is configured."""
+    world = evaluation.world.under(project_root)
+    for split, spec in world.cities.items():
+        problems.collect(resolve_city_name, spec, world.city_dir, f"world.cities.{split}")
+    for split in evaluation.evaluate.splits:
+        if split not in world.cities:
+            problems.add(f"world.cities.{split}", f"missing: evaluate.splits.{split} needs a city")
+    wanted = [("select_model.city", select.city)] if select.enabled else []
+    wanted += [("select_model.probe.city", select.probe.city)] if select.probe.enabled else []
+    for key, city in wanted:
+        if city not in world.cities:
+            problems.add(key, f"{city!r} is not a world.cities entry ({sorted(world.cities)})")
+
+
+def _check_iteration(cfg: dict, n: int, top: Section, collect: CollectInputs | None, project_root: Path,
+                     problems: Problems) -> None:
+    """`iteration<N>`: enabled, reference_gate, its paths, and its `collect` block merged over `collect` (as
+    stages/collect.py later_iteration_config merges it) is a valid collect config."""
+    block = top.section(f"iteration{n}", required=True)
+    enabled = block.boolean("enabled")
+    block.choice("reference_gate", REFERENCE_GATES)
+    paths = block.section("paths", required=True)
+    for name in ITERATION_PATH_KEYS:
+        paths.text(name, None)
+    paths.done()
+    override = block.value("collect", None)
+    block.done()
+    if override is not None and not isinstance(override, dict):
+        block.problem("collect", f"must be a mapping, got {override!r}")
+        return
+    base = cfg.get("collect")
+    if not isinstance(base, dict):
+        return  # reported as `collect`
+    key = f"iteration{n}.collect"
+    own = Problems()
+    ccfg = CollectConfig.from_dict(deep_merge(base, override or {}), key, own)
+    _check_collect(ccfg, key, own)
+    # a problem of the base `collect` is already reported under `collect`: only the block's own ones count
+    inherited = set(problems.items)
+    problems.items += [(k, p) for k, p in own.items if ("collect" + k[len(key):], p) not in inherited]
+    if collect is not None and enabled and not own.items:
+        problems.collect(plan_sequences, dataclasses.replace(collect, collect=ccfg), project_root)
