@@ -74,24 +74,19 @@ class LearnedController(Controller):
     @classmethod
     def from_checkpoint(cls, path, num_threads: int | None = 1, backend: str = "torch",
                         allocation: str = "network") -> "LearnedController":
-        """Load models/controller.pt; backend "onnx" runs the exported models/controller.onnx beside it."""
-        from expoctl.net.checkpoint import load_checkpoint
+        """Load models/controller.pt; backend "onnx" runs the exported models/controller.onnx beside it.
 
+        A bad file raises `InputError` naming it and the problem, with the same checks and words as the stages' start
+        check (`expoctl.net.checkpoint.check_checkpoint`): truncated, not a checkpoint, weights that do not match
+        model_config, an .onnx that is missing, does not load or takes another input shape."""
+        from expoctl.net.checkpoint import load_checkpoint, onnx_session
+
+        if backend not in ("torch", "onnx"):
+            raise ConfigError("controllers.learned.backend", f"must be torch or onnx, got {backend!r}")
         model, ckpt = load_checkpoint(path)
         session = None
         if backend == "onnx":
-            import onnxruntime as ort
-
-            onnx_path = Path(path).with_suffix(".onnx")
-            if not onnx_path.exists():
-                raise ConfigError("controllers.learned.backend", f"onnx selected but {onnx_path} does not exist")
-            opts = ort.SessionOptions()
-            if num_threads:
-                opts.intra_op_num_threads = int(num_threads)
-                opts.inter_op_num_threads = 1
-            session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
-        elif backend != "torch":
-            raise ConfigError("controllers.learned.backend", f"must be torch or onnx, got {backend!r}")
+            session = onnx_session(Path(path).with_suffix(".onnx"), ckpt["input_hw"], num_threads)
         return cls(model, ckpt["store_hw"], ckpt["input_hw"], num_threads=num_threads, onnx_session=session,
                    exposure_scale=model.cfg.exposure_scale, allocation=allocation)
 
