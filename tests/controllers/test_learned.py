@@ -9,7 +9,7 @@ from torch import nn
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Settings
-from expoctl.controllers.learned import LearnedController, exposure_first, make_learned
+from expoctl.controllers.learned import LearnedController, exposure_first, make_learned, read_learned_params
 from expoctl.controllers.registry import make_controller
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig
@@ -142,3 +142,14 @@ def _run_backends(tmp_path, frames):
     for bad in (0, 1.5, "2"):
         with pytest.raises(ConfigError, match="controllers.learned.latency_frames"):
             make_learned({"checkpoint": str(tmp_path / "controller.pt"), "latency_frames": bad})
+
+
+def test_params_are_checked_without_a_checkpoint():
+    """The compose stage checks controllers.learned before any network exists: no file is opened."""
+    assert read_learned_params({"checkpoint": "/nonexistent/controller.pt", "latency_frames": 2}) == {
+        "path": "/nonexistent/controller.pt", "backend": "torch", "num_threads": 1, "allocation": "network",
+        "latency_frames": 2}
+    with pytest.raises(ConfigError) as exc:
+        read_learned_params({"backend": "tensorrt", "allocation": "x", "latency_frames": 0, "weights": "w"})
+    assert [k for k, _ in exc.value.problems] == ["controllers.learned.backend", "controllers.learned.allocation",
+                                                  "controllers.learned.latency_frames", "controllers.learned.weights"]

@@ -52,6 +52,17 @@ def test_config_validation_names_keys():
     assert ModelConfig.from_dict({"exposure_scale": "log"}).exposure_scale == "log"
 
 
+def test_value_that_does_not_convert_names_its_own_key_and_every_problem_is_reported():
+    with pytest.raises(ConfigError) as exc:
+        ModelConfig.from_dict({"dropout": "abc", "conv_widths": "30", "input_size": "big", "pool": 0})
+    assert exc.value.problems == [
+        ("model.input_size", "must be a size in pixels or [height, width], got 'big'"),
+        ("model.dropout", "must be a number, got 'abc'"),
+        ("model.conv_widths", "must be a list of integers, got '30'"),
+        ("model.conv_kernels", "kernels and pool must be ≥ 1"),
+    ]
+
+
 def test_residual_output_starts_as_the_hold_predictor():
     """output=residual: an untrained net returns frame t's own normalised settings (channels 3, 4), whatever else
     the frames show; training then moves it away only through the head."""

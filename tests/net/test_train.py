@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import onnxruntime as ort
 import pytest
@@ -45,6 +47,24 @@ def test_config_errors_name_keys():
         TrainConfig.from_dict({"epsilon": 1.5})
     with pytest.raises(ConfigError, match="train.learning_rate"):
         TrainConfig.from_dict({"learning_rate": 1e-3})
+
+
+def test_value_that_does_not_convert_names_its_own_key_and_every_problem_is_reported():
+    with pytest.raises(ConfigError) as exc:
+        TrainConfig.from_dict({"lr": "abc", "epochs": [1], "exposure_shift_ev": 3, "max_train_samples": "x",
+                               "epsilon": 1.5, "learning_rate": 1e-3})
+    known = sorted(f.name for f in dataclasses.fields(TrainConfig))
+    assert exc.value.problems == [
+        ("train.learning_rate", f"unknown key (known: {known})"),
+        ("train.epochs", "must be an integer, got [1]"),
+        ("train.lr", "must be a number, got 'abc'"),
+        ("train.exposure_shift_ev", "must be two numbers in EV, got 3"),
+        ("train.max_train_samples", "must be an integer or null, got 'x'"),
+        ("train.epsilon", "must be in [0, 1], got 1.5"),
+    ]
+    with pytest.raises(ConfigError) as exc:
+        TrainConfig.from_dict({"lr": -1})
+    assert exc.value.problems == [("train.lr", "must be > 0, got -1.0")]
 
 
 def test_fit_learns_beats_baseline_and_is_deterministic(sets):

@@ -12,6 +12,17 @@ from expoctl.world.cities import CITY_NAMES, city_config, packaged_city
 CONF = Path(__file__).resolve().parents[2] / "conf" / "world" / "cities"
 
 
+def test_unknown_city_lists_every_name_a_user_may_give():
+    """The packaged cities, then the scenario cities that exist only as YAML in the city directory."""
+    with pytest.raises(ConfigError) as exc:
+        city_config("nowhere", CONF)
+    assert exc.value.problems == [("world.city", "unknown city 'nowhere'; known cities: train, validation, test, "
+                                   "stress, ramp_tunnel, underpass (or pass a dict)")]
+    assert city_config("underpass", CONF)["name"] == "underpass"
+    with pytest.raises(ConfigError, match="known cities: train, validation, test, stress [(]or pass a dict[)]"):
+        city_config("underpass")  # without a city directory only the packaged cities exist
+
+
 @pytest.mark.parametrize("name", CITY_NAMES)
 def test_packaged_cities_validate_and_match_yaml(name):
     cfg = city_config(name)
