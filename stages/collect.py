@@ -36,7 +36,8 @@ def later_iteration_config(cfg: dict) -> dict:
     problems.raise_if_any()
     collect_cfg = deep_merge(cfg["collect"], block.get("collect") or {})
     if not enabled:
-        collect_cfg["splits"] = {k: {**v, "n_sequences": 0} for k, v in collect_cfg["splits"].items()}
+        collect_cfg["splits"] = {k: None if v is None else {**v, "n_sequences": 0}  # None: records nothing already
+                                 for k, v in collect_cfg["splits"].items()}
     controllers = dict(cfg.get("controllers") or {})
     if collect_cfg.get("reference_controller") == "learned":
         checkpoint = PROJECT_ROOT / cfg["paths_prev"]["model"]
@@ -46,6 +47,10 @@ def later_iteration_config(cfg: dict) -> dict:
             key = "paths.model" if n == 2 else f"iteration{n - 1}.paths.model"
             raise ConfigError(key, f"{checkpoint}: the iteration-{n - 1} model is missing (run its train stage)")
         controllers["learned"] = {**(controllers.get("learned") or {}), "checkpoint": str(checkpoint)}
+        if enabled:  # the network drives camera 1 (or the reference gate's probe): checked before any work
+            from expoctl.net.checkpoint import check_checkpoint
+
+            check_checkpoint(checkpoint, onnx=controllers["learned"].get("backend", "torch") == "onnx")
     # the gate's fallback is iteration 1's reference, `collect.reference_controller` before the merge
     return {**cfg, "collect": collect_cfg, "controllers": controllers, "enabled": enabled, "reference_gate": gate,
             "reference_fallback": cfg["collect"].get("reference_controller")}

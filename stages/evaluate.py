@@ -19,6 +19,7 @@ import numpy as np
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
 from expoctl.host import host_cpu
+from expoctl.net.checkpoint import check_checkpoint
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -35,6 +36,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     if "final_model" in cfg.get("paths", {}):
         cfg = final_model_config(cfg)
     inputs = EvaluationInputs.from_resolved(cfg)  # every config problem at once, before any work
+    check_network(inputs, root)
     t0 = time.perf_counter()
     result = evaluate(inputs, root, progress=sys.stderr.isatty())
     seconds = time.perf_counter() - t0
@@ -53,6 +55,16 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
             log.info("%-10s %-15s dynamic ORB median %s min %s; VO %d/%d", split, ctrl, _fmt(d["median_nfm"]),
                      _fmt(d["min_nfm"]), t[0], t[1])
     log.info("%d runs, %d frames in %.0f s → %s", len(runs), len(result.frames), seconds, out["metrics"])
+
+
+def check_network(inputs: EvaluationInputs, root: Path) -> None:
+    """The network the learned controller drives (the final model), checked before any evaluation work: a truncated
+    or mismatched checkpoint, or with `controllers.learned.backend: onnx` a bad .onnx beside it, stops the stage at
+    once with an InputError naming the file (not minutes later in a worker)."""
+    if "learned" not in inputs.evaluate.controllers:
+        return
+    onnx = inputs.controller_params("learned").get("backend", "torch") == "onnx"
+    check_checkpoint(inputs.learned_model_path(root), onnx=onnx)
 
 
 def _fmt(v) -> str:

@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from expoctl.io import write_json
-from expoctl.net.checkpoint import load_checkpoint
+from expoctl.net.checkpoint import check_checkpoint
 from expoctl.report.headline import headline_metrics
 from expoctl.report.results import ReportConfig, build_report, load_eval
 from stages.common import PROJECT_ROOT, stage_main
@@ -19,7 +19,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
     rcfg = ReportConfig.from_dict(cfg.get("report"))  # ConfigError before any work
     reports_dir = root / cfg["paths"]["reports_dir"]
-    _, ckpt = load_checkpoint(root / cfg["paths"]["final_model"])  # the network evaluate drove
+    ckpt = check_checkpoint(root / cfg["paths"]["final_model"])  # the network evaluate drove, checked first
     metrics, _, runs = load_eval(reports_dir)
     headline = headline_metrics(metrics, runs, ckpt.get("metrics", {}).get("val_loss"))
     written = build_report(reports_dir, rcfg)

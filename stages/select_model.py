@@ -22,6 +22,7 @@ from pathlib import Path
 from expoctl.config_reader import Problems
 from expoctl.errors import InputError
 from expoctl.evaluation.inputs import EvaluationInputs
+from expoctl.net.checkpoint import check_checkpoint
 from expoctl.selection.saturation_probe import summary_line
 from expoctl.selection.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
 from stages.common import PROJECT_ROOT, stage_main
@@ -45,6 +46,23 @@ def candidates(cfg: dict, root: Path) -> list[Candidate]:
     return out
 
 
+def check_candidates(cands: list[Candidate]) -> None:
+    """Every candidate's checkpoint and .onnx (both are copied to the final model), checked before any work: one
+    InputError naming each bad file and what is wrong with it."""
+    problems = []
+    for c in cands:
+        missing = [p for p in (c.path, c.path.with_suffix(".onnx")) if not p.is_file()]
+        if missing:
+            problems += [f"{p}: the {c.name} network is missing (run its train stage first)" for p in missing]
+            continue
+        try:
+            check_checkpoint(c.path, onnx=True)
+        except InputError as exc:
+            problems.append(f"{exc} (the {c.name} network)")
+    if problems:
+        raise InputError("\n".join(problems))
+
+
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -58,10 +76,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     inputs = EvaluationInputs.from_resolved(cfg, problems)
     problems.raise_if_any()
     cands = candidates(cfg, root)
-    for c in cands:
-        for p in (c.path, c.path.with_suffix(".onnx")):
-            if not p.is_file():
-                raise InputError(f"{p}: the {c.name} network is missing (run its train stage first)")
+    check_candidates(cands)
     probe = None
     pool = cands
     if scfg.probe.enabled and len(cands) > 1:
@@ -89,6 +104,9 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         rule = "select_model.enabled is false: the last remaining iteration's network (the paper's choice)"
     if probe is not None:
         rule = f"{PROBE_RULE}; then {rule}"
+    note = failed_probe_note(chosen, cands, probe, scfg)
+    if note is not None:
+        log.warning("%s", note)
     final = root / cfg["paths"]["final_model"]
     for src, dst in ((chosen.path, final), (chosen.path.with_suffix(".onnx"), final.with_suffix(".onnx"))):
         with atomic_path(dst) as tmp:
@@ -97,6 +115,8 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         "chosen": chosen.name,
         "final_model": cfg["paths"]["final_model"],
         "rule": rule,
+        "chosen_failed_probe": note is not None,
+        "note": note,
         "city": scfg.city,
         "reference": scfg.reference if scores else None,
         "candidates": [{"name": c.name, "iteration": c.iteration, "path": str(c.path.relative_to(root))
@@ -114,6 +134,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     metrics = {"seconds": seconds, "chosen_iteration": chosen.iteration}
     if probe is not None:
         metrics["probe_seconds"] = probe["seconds"]
+        metrics["chosen_failed_probe"] = int(note is not None)
     for name, r in ((probe or {}).get("results") or {}).items():
         metrics[f"{name}.probe_worst_saturated_frac"] = r["worst_saturated_frac"]
         metrics[f"{name}.probe_worst_dark_frac"] = r["worst_dark_frac"]
@@ -135,6 +156,31 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
                  s["name"], s["vo_ok"], s["vo_runs"], _fmt(d["orb"]), _fmt(d["viso"]), s["score"],
                  _fmt(s.get("median_offset_ev"), "+.2f"), scfg.reference, 100 * (s["median_saturated_frac"] or 0))
     log.info("final model: %s → %s (%s)", chosen.name, final, rule)
+
+
+def failed_probe_note(chosen: Candidate, cands: list[Candidate], probe: dict | None, scfg: SelectConfig) -> str | None:
+    """None when the chosen network passed the saturation probe (or no probe ran); otherwise the sentence that says
+    it failed, how, and why it was still picked (logged as a WARNING and recorded in reports/select_model.json)."""
+    if probe is None or probe["results"][chosen.name]["passes"]:
+        return None
+    r, pc = probe["results"][chosen.name], scfg.probe
+    how = []
+    if "white" in r["fails_on"]:
+        how.append(f"worst start ends {100 * r['worst_saturated_frac']:.0f} % clipped white, at least "
+                   f"select_model.probe.max_saturated_fraction {pc.max_saturated_fraction:g}")
+    if "black" in r["fails_on"]:
+        how.append(f"darkest start ends {100 * r['worst_dark_frac']:.0f} % black, at least "
+                   f"select_model.probe.max_dark_fraction {pc.max_dark_fraction:g}")
+    failed = probe["failed"]
+    if len(failed) == len(cands):
+        why = (f"every candidate failed the probe ({', '.join(failed)}), so it could exclude none and all were kept; "
+               + ("the selection windows then chose this one" if scfg.enabled else
+                  "select_model.enabled is false, so the last remaining iteration's network was kept"))
+    else:
+        why = f"the probe kept {', '.join(probe['kept'])} and this one was chosen among them"
+    return (f"the final model {chosen.name} FAILED the saturation probe ({'; '.join(how)}) but was still chosen: "
+            f"{why}. It may run the camera into saturation: check reports/select_model.json's probe results before "
+            "trusting the evaluation")
 
 
 def _fmt(v, spec: str = ".0f") -> str:

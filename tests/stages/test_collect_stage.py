@@ -110,3 +110,43 @@ def test_reference_gate_reports_probe_and_collect_problems_in_one_pass(tmp_path,
     keys = [k for k, _ in exc.value.problems]
     assert "select_model.probe.frames" in keys and "collect.warmup_frames" in keys, keys
     assert not (tmp_path / "reports2").exists()
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("collect work started before the reference network was checked")
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_a_bad_reference_network_stops_a_later_iteration_first(tmp_path, monkeypatch, backend):
+    """Iteration 2 with the iteration-1 network as camera 1's reference: a truncated checkpoint (torch) or, with the
+    onnx backend, a missing .onnx is one InputError naming the file, before the gate's probe or any recording."""
+    from expoctl.errors import InputError
+    from stages.iterations import for_iteration
+
+    use_real_or_test_sensor(monkeypatch)
+    monkeypatch.setattr(stage, "collect", _no_work)
+    monkeypatch.setattr("expoctl.selection.saturation_probe.make_probe", _no_work)
+    cfg, _ = selection_project(tmp_path)
+    net = tmp_path / "models" / "good.pt"
+    if backend == "torch":
+        data = net.read_bytes()
+        net.write_bytes(data[:4000])
+        expected = f"{net}: truncated or not a PyTorch file (4000 bytes; the zip archive"
+    else:
+        net.with_suffix(".onnx").unlink()
+        cfg["controllers"]["learned"] = {"backend": "onnx"}
+        expected = f"{net.with_suffix('.onnx')}: ONNX export missing"
+    cfg["paths"].update(model=str(net), raw_dir=str(tmp_path / "raw"))
+    cfg["collect"] = {"reference_controller": "agae", "initial_gain_db": 0.0, "initial_exposure_us": 5000.0,
+                      "warmup_frames": 0, "sensor_randomisation": 0.0, "n_jobs": 1,
+                      "splits": {"train": {"n_sequences": 1, "frames": 4}, "validation": None, "test": None}}
+    cfg["iteration2"] = {"enabled": True, "reference_gate": "probe", "collect": {"reference_controller": "learned"},
+                         "paths": {"raw_dir": str(tmp_path / "raw2"), "reports_dir": str(tmp_path / "reports2")}}
+    with pytest.raises(InputError) as e:
+        stage.run(for_iteration(cfg, 2), FakeTracker())
+    assert str(e.value).startswith(expected)
+    assert not (tmp_path / "raw2").exists() and not (tmp_path / "reports2").exists()
+    # a disabled iteration records nothing, so its reference network is not read at all
+    cfg["iteration2"]["enabled"] = False
+    monkeypatch.setattr(stage, "collect", lambda *a, **k: [])
+    stage.run(for_iteration(cfg, 2), FakeTracker())

@@ -94,3 +94,43 @@ def test_missing_model_fails_with_a_message(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="controller.pt: trained model missing"):
         stage.run(cfg, FakeTracker(), project_root=tmp_path)
     assert not (tmp_path / "reports").exists()
+
+
+def _no_evaluation(*args, **kwargs):
+    raise AssertionError("evaluation work started before the network was checked")
+
+
+@pytest.mark.parametrize("damage", ["truncated", "random", "shapes", "onnx_missing"])
+def test_a_bad_final_model_stops_the_stage_before_any_evaluation(tmp_path, monkeypatch, damage):
+    """Before: a truncated models/controller_final.pt failed only after the whole evaluation (~48 s at fixture
+    scale) with `[Errno 22] Invalid argument`. Now the stage checks the network first and names the file."""
+    import torch
+
+    from stages import evaluate as stage
+
+    monkeypatch.setattr(stage, "evaluate", _no_evaluation)
+    monkeypatch.setattr("expoctl.evaluation.runner.evaluate", _no_evaluation)
+    cfg = make_fixture_project(tmp_path)
+    final = tmp_path / "models/controller_final.pt"
+    data = (tmp_path / "models/controller.pt").read_bytes()
+    cfg["paths"]["final_model"] = "models/controller_final.pt"
+    if damage == "truncated":
+        final.write_bytes(data[: len(data) // 2])
+        expected = f"{final}: truncated or not a PyTorch file ({len(data) // 2} bytes; the zip archive"
+    elif damage == "random":
+        final.write_bytes(bytes(range(256)) * 8)
+        expected = f"{final}: truncated or not a PyTorch file (2048 bytes, not starting with the zip header"
+    elif damage == "shapes":
+        ckpt = torch.load(tmp_path / "models/controller.pt", weights_only=True)
+        ckpt["model_config"]["fc_widths"] = [8, 8, 16]
+        torch.save(ckpt, final)
+        expected = (f"{final}: state_dict does not match model_config: head.9.weight has shape [8, 8], expected "
+                    "[16, 8]")
+    else:  # the onnx backend needs the .onnx beside the checkpoint
+        final.write_bytes(data)
+        cfg["controllers"]["learned"] = {"backend": "onnx"}
+        expected = f"{final.with_suffix('.onnx')}: ONNX export missing"
+    with pytest.raises(InputError) as e:
+        stage.run(cfg, FakeTracker(), project_root=tmp_path)
+    assert str(e.value).startswith(expected)
+    assert not (tmp_path / "reports/metrics.json").exists()

@@ -95,3 +95,84 @@ def test_bad_config_stops_before_any_output(project):
     with pytest.raises(InputError, match="select_model.city"):
         stage.run(cfg, FakeTracker(), project_root=root)
     assert not (root / "models/controller_final.pt").exists()
+
+
+def test_every_candidate_failing_the_probe_is_said_and_recorded(project, caplog):
+    """Both iterations' networks stuck at 30 ms and 30 dB: the probe fails both, keeps both, and the last one is the
+    final model — with a WARNING and the reason in reports/select_model.json (before: picked without a word)."""
+    from stages import select_model as stage
+
+    root, cfg = project
+    cfg["paths"]["model"] = "models/white.pt"  # iteration 1 as saturated as iteration 2
+    cfg["select_model"]["enabled"] = False
+    tracker = FakeTracker()
+    with caplog.at_level("WARNING"):
+        stage.run(cfg, tracker, project_root=root)
+    report = json.loads((root / "reports/select_model.json").read_text())
+    assert report["chosen"] == "iteration2" and report["probe"]["failed"] == ["iteration1", "iteration2"]
+    assert report["chosen_failed_probe"] is True
+    note = ("the final model iteration2 FAILED the saturation probe (worst start ends 100 % clipped white, at least "
+            "select_model.probe.max_saturated_fraction 0.97) but was still chosen: every candidate failed the probe "
+            "(iteration1, iteration2), so it could exclude none and all were kept; select_model.enabled is false, so "
+            "the last remaining iteration's network was kept. It may run the camera into saturation: check "
+            "reports/select_model.json's probe results before trusting the evaluation")
+    assert report["note"] == note
+    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [note]
+    assert tracker.metrics["chosen_failed_probe"] == 1
+
+
+def test_a_chosen_network_that_passed_has_no_note(project):
+    from stages import select_model as stage
+
+    root, cfg = project
+    cfg["select_model"]["enabled"] = False
+    tracker = FakeTracker()
+    stage.run(cfg, tracker, project_root=root)
+    report = json.loads((root / "reports/select_model.json").read_text())
+    assert report["chosen"] == "iteration1"
+    assert report["chosen_failed_probe"] is False and report["note"] is None
+    assert tracker.metrics["chosen_failed_probe"] == 0
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("selection work started before the candidates were checked")
+
+
+def test_bad_candidate_checkpoints_stop_before_any_probe(project, monkeypatch):
+    """A truncated iteration-1 checkpoint and an iteration-2 .onnx of random bytes: one InputError naming both
+    files, before the probe or the selection windows run and before any output."""
+    from stages import select_model as stage
+
+    root, cfg = project
+    monkeypatch.setattr(stage, "probe_candidates", _no_work)
+    monkeypatch.setattr(stage, "select_model", _no_work)
+    good, white = root / "models/good.pt", root / "models/white.onnx"
+    data = good.read_bytes()
+    good.write_bytes(data[: len(data) // 2])
+    white.write_bytes(b"\x01\x02" * 500)
+    with pytest.raises(InputError) as e:
+        stage.run(cfg, FakeTracker(), project_root=root)
+    first, second = str(e.value).split("\n")
+    assert first == (f"{good}: truncated or not a PyTorch file ({len(data) // 2} bytes; the zip archive torch.save "
+                     "writes has no end record: [Errno 22] Invalid argument) (the iteration1 network)")
+    assert second.startswith(f"{white}: not loadable by onnxruntime: truncated or not an ONNX model (1000 bytes; ")
+    assert second.endswith("(the iteration2 network)")
+    assert not (root / "models/controller_final.pt").exists()
+    assert not (root / "reports/select_model.json").exists()
+
+
+def test_candidate_whose_weights_do_not_fit_its_model_config(project, monkeypatch):
+    import torch
+
+    from stages import select_model as stage
+
+    root, cfg = project
+    monkeypatch.setattr(stage, "probe_candidates", _no_work)
+    monkeypatch.setattr(stage, "select_model", _no_work)
+    path = root / "models/white.pt"
+    ckpt = torch.load(path, weights_only=True)
+    ckpt["state_dict"]["head.9.weight"] = torch.zeros(8, 4)
+    torch.save(ckpt, path)
+    with pytest.raises(InputError, match=f"^{path}: state_dict does not match model_config: head.9.weight has shape "
+                                         r"\[8, 4\], expected \[8, 8\] \(the iteration2 network\)$"):
+        stage.run(cfg, FakeTracker(), project_root=root)
