@@ -97,3 +97,49 @@ def test_ingest_several_raw_dirs(tmp_path):
     (tmp_path / "empty").mkdir()
     assert len(ingest([tmp_path / "raw", tmp_path / "empty"], tmp_path / "g.parquet", tmp_path / "img2",
                       IngestConfig(8, 8), project_root=tmp_path)) == 4
+
+
+def test_one_run_reports_a_bad_csv_cell_and_a_truncated_png_together(tmp_path):
+    """Before: the first run reported the CSV cell only (pass 1 reads PNG headers, and a truncated PNG's header is
+    whole); the truncated PNG came out of the second run. Now one InputError names both, and nothing is written."""
+    seq = write_synthetic_sequence(tmp_path / "raw" / "train" / "s1", n_frames=4)
+    frames_csv = seq / "frames.csv"
+    lines = frames_csv.read_text().splitlines()
+    header = lines[0].split(",")
+    row = lines[3].split(",")  # line 4 of the file
+    row[header.index("exposure_us")] = "fast"
+    lines[3] = ",".join(row)
+    frames_csv.write_text("\n".join(lines) + "\n")
+    png = seq / "cam2" / "000002.png"
+    data = png.read_bytes()
+    png.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError) as exc:
+        ingest(tmp_path / "raw", tmp_path / "frames.parquet", tmp_path / "images", IngestConfig(16, 12),
+               project_root=tmp_path)
+    assert str(exc.value).splitlines() == [
+        "2 problem(s) in the raw data; nothing was written:",
+        f"{frames_csv}: line 4, column 'exposure_us': not a number ('fast')",
+        f"{frames_csv}: line 7, column 'image': {png}: truncated or corrupt PNG ({len(data) // 2} bytes, no end "
+        "chunk): unreadable",
+    ]
+    assert not (tmp_path / "frames.parquet").exists() and not (tmp_path / "images").exists()
+
+
+def test_one_run_also_finds_a_png_corrupt_in_the_middle(tmp_path):
+    """A PNG whose header and end are whole but whose image data is broken is found only by decoding: with any
+    other problem in the raw data, ingest decodes every image before it stops, so it is in the same error."""
+    a = write_synthetic_sequence(tmp_path / "raw" / "train" / "a", n_frames=4)
+    b = write_synthetic_sequence(tmp_path / "raw" / "train" / "b", n_frames=4, seed=1)
+    (a / "cam1" / "000003.png").unlink()  # a missing frame
+    png = b / "cam1" / "000001.png"
+    data = bytearray(png.read_bytes())
+    data[60:200] = bytes(140)  # zeroes over the compressed image data, the IEND end chunk intact
+    png.write_bytes(bytes(data))
+    with pytest.raises(InputError) as exc:
+        ingest(tmp_path / "raw", tmp_path / "frames.parquet", tmp_path / "images", IngestConfig(16, 12),
+               project_root=tmp_path)
+    assert str(exc.value).splitlines() == [
+        "2 problem(s) in the raw data; nothing was written:",
+        f"{a / 'frames.csv'}: line 8, column 'image': image file {a / 'cam1' / '000003.png'} missing",
+        f"{b / 'frames.csv'}: line 4, column 'image': {png}: unreadable or corrupt image",
+    ]

@@ -202,3 +202,14 @@ def test_one_camera_sequence_rejects_camera_2_rows_and_bad_count(seq):
     meta["cameras"] = 3
     (seq / "sequence.yaml").write_text(yaml.safe_dump(meta))
     assert any("key 'cameras' must be 1" in p for p in check_sequence(seq).problems)
+
+
+def test_header_only_check_finds_a_truncated_png(seq):
+    """`--no-decode` / ingest's first pass read PNG headers only; a PNG cut short still has its header, but not its
+    end chunk, and is reported without decoding the whole sequence."""
+    png = seq / "cam1" / "000001.png"
+    data = png.read_bytes()
+    png.write_bytes(data[:-40])
+    assert check_sequence(seq, decode_images=False).problems == [
+        f"{seq / 'frames.csv'}: line 4, column 'image': {png}: truncated or corrupt PNG ({len(data) - 40} bytes, no "
+        "end chunk): unreadable"]

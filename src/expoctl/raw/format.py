@@ -92,6 +92,20 @@ def read_png_size(path: str | os.PathLike) -> tuple[int, int] | None:
     return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
+#: the last 12 bytes of every complete PNG: the IEND chunk (length 0, type, CRC)
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def png_has_end(path: str | os.PathLike) -> bool:
+    """Whether the file ends with the PNG end chunk (IEND), without decoding: a truncated PNG does not."""
+    with open(path, "rb") as f:
+        f.seek(0, os.SEEK_END)
+        if f.tell() < len(PNG_END):
+            return False
+        f.seek(-len(PNG_END), os.SEEK_END)
+        return f.read() == PNG_END
+
+
 def decode_8bit_image(path: str | os.PathLike) -> np.ndarray:
     """Decode an image file as stored (grey H×W, or BGR/BGRA H×W×C, uint8); InputError naming the file if it is
     missing, unreadable or not 8-bit."""
@@ -101,6 +115,8 @@ def decode_8bit_image(path: str | os.PathLike) -> np.ndarray:
     data = np.fromfile(path, dtype=np.uint8)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
+        if data[:8].tobytes() == b"\x89PNG\r\n\x1a\n" and not png_has_end(path):
+            raise InputError(f"{path}: truncated or corrupt PNG ({data.size} bytes, no end chunk): unreadable")
         raise InputError(f"{path}: unreadable or corrupt image")
     if img.dtype != np.uint8:
         raise InputError(f"{path}: expected an 8-bit image, got {img.dtype}")

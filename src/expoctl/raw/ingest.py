@@ -1,7 +1,9 @@
 """Ingest raw dual-camera sequences into the frames table and the training image store.
 
 Two passes keep it safe and memory-bounded whatever the dataset size:
-1. check every sequence's sequence.yaml and frames.csv (cheap; no image decoding) and stop with *all* problems;
+1. check every sequence's sequence.yaml and frames.csv and every PNG's header and end (cheap; no image decoding); if
+   anything is wrong, decode every image too and stop with *all* problems (CSV cells, missing frames and partners,
+   missing / truncated / corrupt images) in one error;
 2. stream sequence by sequence: decode each PNG (a corrupt one is reported, and nothing is written), downsample it
    with area averaging, and write it straight into a memory-mapped `<sequence>.npy` in a staging directory.
 Only if every sequence went through is the staging directory renamed over the image store and the frames table
@@ -108,19 +110,15 @@ def ingest(raw_dir: str | os.PathLike | list, frames_path: str | os.PathLike, im
         names = ", ".join(str(d) for d in raw_dirs)
         raise InputError(f"{names}: no sequences found (a sequence is a directory with sequence.yaml and frames.csv)")
 
-    # Pass 1: metadata and CSVs of all sequences, every problem at once.
+    # Pass 1: metadata and CSVs of all sequences, every problem at once. A header-only image check cannot see a
+    # corrupt PNG, which pass 2 would report only on the next run once the rest is fixed; so when pass 1 finds
+    # anything, every image is decoded before stopping and the one error lists every problem there is.
     checks: list[SequenceCheck] = [check_sequence(s, decode_images=False) for s in seq_dirs]
-    problems = [p for c in checks for p in c.problems]
-    names: dict[str, Path] = {}
-    for c in checks:
-        if c.n_cameras != 2:  # `expoctl drive` output: valid, but training pairs two cameras per time step
-            problems.append(f"{c.seq_dir}: a one-camera sequence (sequence.yaml cameras: 1, from expoctl drive); "
-                            "training needs two cameras — record them with expoctl record")
-        if c.seq_dir.name in names:
-            problems.append(f"{c.seq_dir}: sequence name '{c.seq_dir.name}' also used by {names[c.seq_dir.name]}")
-        names.setdefault(c.seq_dir.name, c.seq_dir)
+    problems = _pass1_problems(checks)
     if problems:
-        raise InputError(_problem_text(problems))
+        if progress:
+            progress(f"{len(problems)} problem(s) in the raw data; decoding every image to report all of them at once")
+        raise InputError(_problem_text(_pass1_problems([check_sequence(s, decode_images=True) for s in seq_dirs])))
 
     # Pass 2: decode, downsample and store, one sequence at a time.
     tables = []
@@ -135,6 +133,19 @@ def ingest(raw_dir: str | os.PathLike | list, frames_path: str | os.PathLike, im
         frames = pd.concat(tables, ignore_index=True)[FRAMES_TABLE_COLUMNS]
         write_parquet(frames, frames_path)
     return frames
+
+
+def _pass1_problems(checks: list[SequenceCheck]) -> list[str]:
+    problems = [p for c in checks for p in c.problems]
+    names: dict[str, Path] = {}
+    for c in checks:
+        if c.n_cameras != 2:  # `expoctl drive` output: valid, but training pairs two cameras per time step
+            problems.append(f"{c.seq_dir}: a one-camera sequence (sequence.yaml cameras: 1, from expoctl drive); "
+                            "training needs two cameras — record them with expoctl record")
+        if c.seq_dir.name in names:
+            problems.append(f"{c.seq_dir}: sequence name '{c.seq_dir.name}' also used by {names[c.seq_dir.name]}")
+        names.setdefault(c.seq_dir.name, c.seq_dir)
+    return problems
 
 
 def _ingest_sequence(c: SequenceCheck, raw_dir: Path, staging: Path, cfg: IngestConfig, project_root: Path,

@@ -34,6 +34,7 @@ from expoctl.raw.format import (
     SEQUENCE_YAML,
     SOURCES,
     find_sequences,
+    png_has_end,
     read_frames_csv,
     read_image_rgb,
     read_png_size,
@@ -291,6 +292,8 @@ def _check_images(seq_dir: Path, rows: pd.DataFrame, check: SequenceCheck, decod
                 size = read_png_size(img_path)
                 if size is None:
                     raise InputError(f"{img_path}: not a PNG file")
+                if not png_has_end(img_path):  # truncated, or data after the end chunk: decode to tell which
+                    read_image_rgb(img_path)
         except InputError as exc:
             check.problems.append(f"{where}: {exc}")
             continue

@@ -12,7 +12,9 @@ from expoctl.raw.validate import check_sequence, summary_line
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("raw_dir", help="a sequence directory or a directory holding sequences (any depth)")
-    parser.add_argument("--no-decode", action="store_true", help="check PNG headers only (faster, misses corrupt data)")
+    parser.add_argument("--no-decode", action="store_true",
+                        help="check PNG headers and end chunks only (faster; finds truncated files, misses data "
+                             "corrupt inside a file)")
 
 
 def run(args: argparse.Namespace) -> int:
