@@ -68,6 +68,7 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
     paths.done()
     for n in range(2, LAST_ITERATION + 1):
         _check_iteration(cfg, n, top, collect, project_root, problems)
+    _check_fixed_paths(cfg, problems)
     top.done(TOP_LEVEL_KEYS)
     # groups read by several stages (world, rig, sensor, seed) are reported once
     problems.items = list(dict.fromkeys(problems.items))
@@ -140,3 +141,26 @@ def _check_iteration(cfg: dict, n: int, top: Section, collect: CollectInputs | N
     problems.items += [(k, p) for k, p in own.items if ("collect" + k[len(key):], p) not in inherited]
     if collect is not None and enabled and not own.items:
         problems.collect(plan_sequences, dataclasses.replace(collect, collect=ccfg), project_root)
+
+
+def _check_fixed_paths(cfg: dict, problems: Problems) -> None:
+    """`paths.*` and `iteration<N>.paths.*` name the DVC outputs that dvc.yaml declares, so they cannot move: a stage
+    told to write elsewhere writes outside DVC's view, and collect, which replaces its output directory whole, would
+    delete whatever is there (a recording under `paths.raw_dir=data/rig`, say). Real recordings have their own home."""
+    import yaml
+
+    defaults = yaml.safe_load((Path(__file__).resolve().parents[1] / "conf" / "config.yaml").read_text())
+    blocks = [("paths", defaults.get("paths") or {})] + [
+        (f"iteration{n}.paths", (defaults.get(f"iteration{n}") or {}).get("paths") or {})
+        for n in range(2, LAST_ITERATION + 1)]
+    for key, fixed in blocks:
+        node: Any = cfg
+        for part in key.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if not isinstance(node, dict):
+            continue  # reported by the readers above
+        for name, value in node.items():
+            if name in fixed and isinstance(value, str) and value != fixed[name]:  # a non-string: reported above
+                problems.add(f"{key}.{name}", f"is {fixed[name]!r}, fixed by dvc.yaml (a stage output), got "
+                             f"{value!r}; real recordings go in data/recordings with collect.source=recordings "
+                             "(docs/raw_format.md)")

@@ -112,9 +112,9 @@ def test_scenario_city_from_city_dir_passes():
     check_resolved(compose_config(["world.cities.test=underpass", "+world.cities.extra=ramp_tunnel"]))
 
 
-def test_no_checkpoint_or_data_is_needed(tmp_path):
-    check_resolved(compose_config([f"+controllers.learned.checkpoint={tmp_path}/missing.pt",
-                                   f"paths.frames={tmp_path}/missing.parquet"]))
+def test_no_checkpoint_or_data_is_needed(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # no data/ or models/ under the working directory either
+    check_resolved(compose_config([f"+controllers.learned.checkpoint={tmp_path}/missing.pt"]))
 
 
 def test_top_level_keys_are_conf_config_and_scale_presets():
@@ -126,3 +126,17 @@ def test_top_level_keys_are_conf_config_and_scale_presets():
     expected = set(groups) | (set(config) - {"defaults"}) | presets
     assert sorted(TOP_LEVEL_KEYS) == sorted(expected)
     assert sorted(PATH_KEYS) == sorted(config["paths"])
+
+
+@pytest.mark.parametrize("override,key", [
+    ("paths.raw_dir=data/rig", "paths.raw_dir"),
+    ("iteration2.paths.model=models/other.pt", "iteration2.paths.model"),
+])
+def test_output_paths_are_fixed_by_dvc_yaml(override, key):
+    """The old docs' `paths.raw_dir=data/rig` would have collect replace data/rig (a user's recordings) whole."""
+    from stages.compose import compose_config
+
+    with pytest.raises(ConfigError) as exc:
+        check_resolved(compose_config(["scale=fixture", override]))
+    assert [k for k, _ in exc.value.problems] == [key]
+    assert "fixed by dvc.yaml" in str(exc.value) and "data/recordings" in str(exc.value)
