@@ -141,7 +141,8 @@ def run(cfg: dict, tracker) -> None:
                                  "reference_probe_worst_dark_frac": decision["probe"]["worst_dark_frac"]})
     out_dir = PROJECT_ROOT / cfg["paths"]["raw_dir"]
     t0 = time.perf_counter()
-    # a bar on a terminal; under DVC (no tty) one log line per finished sequence
+    # a bar on a terminal; under DVC (no tty) log lines: every 30 s each sequence in progress (frame pairs done /
+    # total, elapsed, rate; expoctl.sim.collect.PROGRESS_EVERY_S), and one per finished sequence
     summaries = collect(inputs, out_dir, progress=True if sys.stderr.isatty() else log.info, project_root=PROJECT_ROOT)
     if decision is not None:
         write_json(decision, report)

@@ -98,13 +98,49 @@ def test_collect_is_deterministic_per_seed(tiny_run, tmp_path, city_dir):
     assert (other / "train" / "train-small-t000" / "frames.csv").read_text() != (a / "frames.csv").read_text()
 
 
+def _progress_counts(lines: list[str]) -> dict[str, list[tuple[int, int]]]:
+    """(done, total) of every in-sequence progress line, per sequence."""
+    import re
+
+    out: dict[str, list[tuple[int, int]]] = {}
+    for line in lines:
+        m = re.fullmatch(r"(\S+): (\d+)/(\d+) frame pairs, \d+ s, [\d.]+ frame pairs/s", line)
+        if m:
+            out.setdefault(m[1], []).append((int(m[2]), int(m[3])))
+    return out
+
+
+def test_progress_lines_while_a_sequence_renders(tiny_run, tmp_path, city_dir):
+    """Under DVC (a logger as `progress`) collect says how far each sequence is, not only when one finishes: with
+    progress_every_s=0 one line per frame pair (frames done / total, elapsed, rate), the same bytes written."""
+    out, _ = tiny_run
+    cfg = tiny(city_dir)
+    lines: list[str] = []
+    again = tmp_path / "again"
+    collect(CollectInputs.from_resolved(cfg), again, progress=lines.append, progress_every_s=0.0)
+    assert _progress_counts(lines) == {"train-small-t000": [(k, 6) for k in range(1, 7)],
+                                       "validation-small-t005": [(k, 5) for k in range(1, 6)]}
+    assert [line.split(" (")[0] for line in lines if not _progress_counts([line])] == [
+        "1/2 train-small-t000: 6 frame pairs", "2/2 validation-small-t005: 5 frame pairs"]
+    for seq in ("train/train-small-t000", "validation/validation-small-t005"):
+        assert (out / seq / "frames.csv").read_text() == (again / seq / "frames.csv").read_text()
+    # the default: at most one line every 30 s, so none in a run this short
+    lines.clear()
+    collect(CollectInputs.from_resolved(cfg), tmp_path / "quiet", progress=lines.append)
+    assert _progress_counts(lines) == {} and len(lines) == 2
+
+
 @pytest.mark.slow  # spawns two worker processes (each loads numba kernels and builds the city's textures)
 def test_process_pool_gives_the_same_bytes(tiny_run, tmp_path, city_dir):
     out, _ = tiny_run
     cfg = tiny(city_dir)
     cfg["collect"]["n_jobs"] = 2
     again = tmp_path / "again"
-    collect(CollectInputs.from_resolved(cfg), again, progress=False)
+    lines: list[str] = []
+    collect(CollectInputs.from_resolved(cfg), again, progress=lines.append, progress_every_s=0.0)
+    # the workers' progress lines come back through the queue, every one of them
+    assert _progress_counts(lines) == {"train-small-t000": [(k, 6) for k in range(1, 7)],
+                                       "validation-small-t005": [(k, 5) for k in range(1, 6)]}
     for seq in ("train/train-small-t000", "validation/validation-small-t005"):
         a, b = out / seq, again / seq
         assert (a / "frames.csv").read_text() == (b / "frames.csv").read_text()

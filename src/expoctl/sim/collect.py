@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 import time
 import zlib
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -169,10 +169,35 @@ def plan_sequences(inputs: CollectInputs, project_root: str | os.PathLike = ".")
     return jobs
 
 
+#: with a callable `progress` (a logger under DVC, no tty): a line per sequence in progress at least this often
+PROGRESS_EVERY_S = 30.0
+
+
+class FrameProgress:
+    """Called with the frame pairs recorded so far in one sequence and its total; emits "<sequence>: <done>/<total>
+    frame pairs, <elapsed> s, <rate> frame pairs/s" when `every_s` seconds have passed since the last line (0: every
+    frame)."""
+
+    def __init__(self, emit: Callable[[str], None], sequence: str, every_s: float = PROGRESS_EVERY_S):
+        self.emit, self.sequence, self.every_s = emit, sequence, every_s
+        self.t0 = self.last = time.perf_counter()
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if now - self.last < self.every_s:
+            return
+        self.last = now
+        elapsed = now - self.t0
+        self.emit(f"{self.sequence}: {done}/{total} frame pairs, {elapsed:.0f} s, "
+                  f"{done / max(elapsed, 1e-9):.2f} frame pairs/s")
+
+
 def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | Callable[[str], None] = True,
-            project_root: str | os.PathLike = ".") -> list[dict[str, Any]]:
+            project_root: str | os.PathLike = ".", progress_every_s: float = PROGRESS_EVERY_S) -> list[dict[str, Any]]:
     """Render every planned sequence into `out_dir/<split>/<sequence>/`; return one summary dict per sequence.
-    `progress`: True = a tqdm bar, a callable = one line per finished sequence (e.g. a logger), False = quiet."""
+    `progress`: True = a tqdm bar, a callable = a line per finished sequence (e.g. a logger) and, every
+    `progress_every_s` seconds while a sequence renders, its frames done / total, elapsed time and rate (from the
+    worker processes too); False = quiet. Progress never changes the data written."""
     from expoctl.controllers.registry import make_controller
     from expoctl.io import atomic_dir
 
@@ -183,7 +208,9 @@ def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | 
     summaries: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     with atomic_dir(out_dir) as tmp_root:
-        for summary in _run_jobs(inputs, jobs, tmp_root, inputs.collect.n_jobs, progress is True):
+        lines = progress if callable(progress) else None
+        for summary in _run_jobs(inputs, jobs, tmp_root, inputs.collect.n_jobs, progress is True, lines,
+                                 progress_every_s):
             summaries.append(summary)
             if callable(progress):
                 progress(f"{len(summaries)}/{len(jobs)} {summary['sequence']}: {summary['n_frames']} frame pairs "
@@ -192,8 +219,10 @@ def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | 
     return sorted(summaries, key=lambda s: order[s["sequence"]])
 
 
-def collect_sequence(inputs: CollectInputs, job: SequenceJob, root: str | os.PathLike) -> dict[str, Any]:
-    """Render one sequence into `root/<split>/<name>/` and return its summary (runs in a worker process)."""
+def collect_sequence(inputs: CollectInputs, job: SequenceJob, root: str | os.PathLike,
+                     progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+    """Render one sequence into `root/<split>/<name>/` and return its summary (runs in a worker process).
+    `progress` (e.g. a `FrameProgress`) is called with (frame pairs written, total) after each one."""
     from expoctl.controllers.registry import make_controller
     from expoctl.world import load_city_cached
 
@@ -236,6 +265,8 @@ def collect_sequence(inputs: CollectInputs, job: SequenceJob, root: str | os.Pat
                 if cam.camera == 1:
                     gains.append(cam.settings.gain_db)
                     exposures.append(cam.settings.exposure_us)
+            if progress is not None:
+                progress(frame.frame_index - first + 1, len(frames))
     return {
         "sequence": job.name,
         "split": job.split,
@@ -277,27 +308,65 @@ def controller_params(controllers: Section, name: str) -> dict:
     return dict(params)
 
 
-def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool) -> Iterator[dict]:
+def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool,
+              lines: Callable[[str], None] | None = None, every_s: float = PROGRESS_EVERY_S) -> Iterator[dict]:
+    """Each finished sequence's summary. `lines`: where the in-sequence progress lines go (`FrameProgress`); from
+    worker processes they come back through a queue that is drained while waiting for the sequences."""
     from tqdm import tqdm
 
     bar = tqdm(total=len(jobs), desc="collect", unit="seq", disable=not progress)
     try:
         if n_jobs <= 1 or len(jobs) <= 1:
             for job in jobs:
-                yield collect_sequence(inputs, job, root)
+                ticker = None if lines is None else FrameProgress(lines, job.name, every_s)
+                yield collect_sequence(inputs, job, root, ticker)
                 bar.update()
             return
         # spawn (not fork): workers may load torch (learned reference controller), which is not fork-safe;
         # one BLAS/torch thread per worker so n_jobs processes do not oversubscribe the cores
-        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(collect_sequence, inputs, job, root) for job in jobs]
+        ctx = get_context("spawn")
+        queue = ctx.Queue() if lines is not None else None
+        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx,
+                                                             initializer=_init_worker, initargs=(queue,)) as pool:
+            futures = [pool.submit(_collect_in_worker, inputs, job, root, every_s) for job in jobs]
             try:
-                for fut in as_completed(futures):
-                    yield fut.result()
-                    bar.update()
+                pending = set(futures)
+                while pending:
+                    done, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+                    _drain(queue, lines)
+                    for fut in done:
+                        yield fut.result()
+                        bar.update()
             except BaseException:
                 for f in futures:
                     f.cancel()
                 raise
+        _drain(queue, lines)  # the workers have exited, so every line they put is in the queue now
     finally:
         bar.close()
+
+
+_WORKER_QUEUE = None  # a worker process's channel for progress lines (set by `_init_worker`)
+
+
+def _init_worker(queue) -> None:
+    global _WORKER_QUEUE
+    _WORKER_QUEUE = queue
+
+
+def _collect_in_worker(inputs: CollectInputs, job: SequenceJob, root: Path, every_s: float) -> dict[str, Any]:
+    ticker = None if _WORKER_QUEUE is None else FrameProgress(_WORKER_QUEUE.put, job.name, every_s)
+    return collect_sequence(inputs, job, root, ticker)
+
+
+def _drain(queue, lines: Callable[[str], None] | None) -> None:
+    import queue as queue_module
+
+    if queue is None:
+        return
+    while True:
+        try:
+            line = queue.get_nowait()
+        except queue_module.Empty:
+            return
+        lines(line)
