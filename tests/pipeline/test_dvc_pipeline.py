@@ -18,7 +18,8 @@ def _ran(output: str) -> set[str]:
 
 ITERATION2 = {"collect_iter@2", "ingest_iter@2", "features_iter@2", "labels_iter@2", "samples_iter@2", "train_iter@2"}
 ITERATION3 = {name.replace("@2", "@3") for name in ITERATION2}
-ALL_STAGES = ({"compose", "collect", "ingest", "features", "labels", "samples", "train", "select_model", "evaluate",
+# guard runs on every repro (always changed) and writes nothing but its stamp; it logs no MLflow run
+ALL_STAGES = ({"guard", "compose", "collect", "ingest", "features", "labels", "samples", "train", "select_model", "evaluate",
                "report"}
               | ITERATION2 | ITERATION3)
 
@@ -77,7 +78,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert gate["probe"]["worst_saturated_frac"] == probed["worst_saturated_frac"]
     assert gate["reference_controller"] == ("learned" if probed["passes"] else "agae")
     assert (p.root / "models" / "controller_final.pt").read_bytes() == (p.root / chosen["path"]).read_bytes()
-    assert p.stage_runs() == {s: 1 for s in ALL_STAGES}
+    assert p.stage_runs() == {s: 1 for s in ALL_STAGES - {"guard"}}
     assert p.stage_runs(children=True) == {"evaluate": 7 * 2}  # one per (controller, city), for the MLflow UI
 
     # Bytecode that an import or a test run leaves in a source directory (another interpreter's, say) is not a
@@ -86,7 +87,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     bytecode.mkdir(exist_ok=True)
     (bytecode / "stray.cpython-399.pyc").write_bytes(b"\0" * 16)
     second = p.dvc("repro")
-    assert _ran(second.stdout) == set(), second.stdout
+    assert _ran(second.stdout) == {"guard"}, second.stdout
 
     # Switching iteration 3 off re-runs exactly the iteration-3 stages and the selection; evaluate re-runs exactly when
     # the selection's final network changed (it depends on the network, not on the iteration keys; which candidate
@@ -95,7 +96,7 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true"])
     third = p.dvc("repro")
     final_changed = (p.root / "models" / "controller_final.pt").read_bytes() != final_before
-    assert _ran(third.stdout) == ({"compose", "select_model", "report"} | ITERATION3
+    assert _ran(third.stdout) == ({"guard", "compose", "select_model", "report"} | ITERATION3
                                   | ({"evaluate"} if final_changed else set())), third.stdout
     model2 = (p.root / "models" / "controller_iter2.pt").read_bytes()
     assert (p.root / "models" / "controller_iter3.pt").read_bytes() == model2
@@ -103,27 +104,134 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     selection = json.loads((p.root / "reports" / "select_model.json").read_text())
     assert [c["name"] for c in selection["candidates"]] == ["iteration1", "iteration2"]
 
-    # A key no stage reads except compose: only compose re-runs (its output changes, but no stage's keys do).
-    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true", "+unused_note=hello"])
+    # params.yaml changed, every stage's keys the same (the overrides reordered): only compose re-runs.
+    p.set_overrides(["select_model.enabled=true", "scale=fixture", "iteration3.enabled=false"])
     fourth = p.dvc("repro")
-    assert _ran(fourth.stdout) == {"compose"}, fourth.stdout
+    assert _ran(fourth.stdout) == {"guard", "compose"}, fourth.stdout
     # A leaf key (the report's layout): compose and report only.
-    p.set_overrides(["scale=fixture", "iteration3.enabled=false", "select_model.enabled=true", "+unused_note=hello",
-                     "report.strip_columns=4"])
-    assert _ran(p.dvc("repro").stdout) == {"compose", "report"}
+    p.set_overrides(["select_model.enabled=true", "scale=fixture", "iteration3.enabled=false", "report.strip_columns=4"])
+    assert _ran(p.dvc("repro").stdout) == {"guard", "compose", "report"}
     runs = p.stage_runs()
     assert runs["report"] == 3 and runs["evaluate"] == 1 + final_changed and runs["select_model"] == 2
     assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter@2"] == 1 and runs["train_iter@3"] == 2
 
 
 def test_bad_raw_data_stops_cleanly(project_copy):
-    """A real rig recording with a bad cell, ingested on its own (collect not run): a one-line message, no output."""
+    """A real rig recording with a bad cell in its home: `dvc repro` stops at collect (which validates recordings
+    before copying them) with a message naming file, line and column; no output, the recording untouched."""
     p = project_copy
-    seq = write_synthetic_sequence(p.root / "data" / "raw" / "train" / "s", n_frames=3)
+    seq = _recording(p.root / "data" / "recordings" / "train" / "s", n_frames=3, seed=0)
     (seq / "frames.csv").write_text((seq / "frames.csv").read_text().replace("3.0,", "99.0,", 1))
-    p.dvc("repro", "compose")
-    out = p.dvc("repro", "--single-item", "ingest", check=False)
+    before = _tree(seq)
+    p.set_overrides(["scale=fixture", "collect.source=recordings"])
+    out = p.dvc("repro", "ingest", check=False)
     assert out.returncode != 0
     assert "line 2, column 'gain_db': 99.0 outside the valid range" in out.stderr + out.stdout
     assert "Traceback" not in out.stderr
-    assert not (p.root / "data" / "frames.parquet").exists()
+    assert not (p.root / "data" / "raw").exists() and not (p.root / "data" / "frames.parquet").exists()
+    assert _tree(seq) == before
+
+
+def _recording(seq_dir, n_frames: int, seed: int):
+    """A real-rig-style sequence (`source: rig`) in the raw format."""
+    seq = write_synthetic_sequence(seq_dir, n_frames=n_frames, height=120, width=160, seed=seed)
+    (seq / "sequence.yaml").write_text((seq / "sequence.yaml").read_text().replace("source: sim", "source: rig"))
+    return seq
+
+
+def _tree(d):
+    return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def _interrupt_when(p, args: list[str], marker: bytes, timeout_s: float = 300.0):
+    """Run `dvc <args>` in its own process group, send SIGINT to the group (a Ctrl-C) as soon as `marker` shows in
+    its output, and return (exit code, output)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "dvc", *args], cwd=p.root, env=p.env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    chunks: list[bytes] = []
+    reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: os.read(proc.stdout.fileno(), 4096), b"")))
+    reader.start()
+    deadline = time.monotonic() + timeout_s
+    while marker not in b"".join(chunks):
+        assert proc.poll() is None and time.monotonic() < deadline, b"".join(chunks).decode()[-3000:]
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    proc.wait(timeout=120)
+    reader.join()
+    return proc.returncode, b"".join(chunks).decode(errors="replace")
+
+
+def test_recordings_train_and_last_good_outputs_survive(project_copy):
+    """Real recordings in their home train the network with nothing simulated and are never touched; a recording
+    put where the old docs said (data/raw) stops `dvc repro` before anything runs; a bad value and a Ctrl-C mid-stage
+    leave every previous output in place, and the messages say so."""
+    p = project_copy
+    rec = p.root / "data" / "recordings"
+    for i, split in enumerate(("train", "train", "validation")):
+        _recording(rec / split / f"rig_{i:03d}", n_frames=24, seed=i)
+    recordings = _tree(rec)
+    base = ["scale=fixture", "collect.source=recordings"]
+    p.set_overrides(base)
+    first = p.dvc("repro", "train")
+    assert _ran(first.stdout) == {"guard", "compose", "collect", "ingest", "features", "labels", "samples", "train"}
+    assert "nothing simulated" in first.stdout + first.stderr
+    frames = pd.read_parquet(p.root / "data" / "frames.parquet")
+    assert set(frames["sequence"]) == {"rig_000", "rig_001", "rig_002"} and len(frames) == 3 * 24 * 2
+    assert _tree(rec) == recordings
+    # the copy collect made, swapped in whole: the sequences (not the home's README)
+    assert _tree(p.root / "data" / "raw") == {k: v for k, v in recordings.items() if k != "README.md"}
+
+    # 1. where the old docs said to put a recording: inside collect's output. Nothing runs, nothing is deleted.
+    stray = _recording(p.root / "data" / "raw" / "train" / "my_rig", n_frames=3, seed=9)
+    stray_bytes = _tree(stray)
+    refused = p.dvc("repro", "train", check=False)
+    assert refused.returncode != 0 and _ran(refused.stdout) == {"guard"}
+    assert ("data/raw/train/my_rig/ (8 files, a recorded sequence (source: rig)): inside the output of stage "
+            "'collect'") in refused.stderr
+    assert "Traceback" not in refused.stderr
+    assert _tree(stray) == stray_bytes
+    import shutil
+    shutil.rmtree(stray)
+
+    # 2. a bad value: compose refuses it, the resolved config and every output stay as they were
+    resolved = (p.root / "configs" / "resolved.yaml").read_bytes()
+    p.set_overrides(base + ["train.lr=abc"])
+    bad = p.dvc("repro", "train", check=False)
+    assert bad.returncode != 0 and "train.lr" in bad.stderr and "Traceback" not in bad.stderr
+    assert (p.root / "configs" / "resolved.yaml").read_bytes() == resolved
+
+    # 3. Ctrl-C mid-features: the previous features and matches stay, byte for byte
+    kept = {f: (p.root / f).read_bytes() for f in ("data/features.parquet", "data/matches.parquet",
+                                                   "models/controller.pt", "models/controller.onnx",
+                                                   "reports/train.json")}
+    p.set_overrides(base + ["features.orb.fast_threshold=19"])
+    code, out = _interrupt_when(p, ["repro", "train"], b"features:")
+    assert code != 0, out
+    assert "expoctl features: interrupted." in out and "Left as before, not replaced: data/features.parquet" in out
+    assert {f: (p.root / f).read_bytes() for f in kept} == kept
+    status = p.dvc("status", "--with-deps", "train").stdout  # train and the stages it depends on
+    assert "features:" in status and "deleted" not in status, status
+
+    # 4. Ctrl-C mid-train (back to the features that are on disk, so only train re-runs)
+    p.set_overrides(base + ["train.epochs=500", "train.patience=500"])
+    code, out = _interrupt_when(p, ["repro", "train"], b"epoch")
+    assert code != 0, out
+    assert "expoctl train: interrupted." in out and "Left as before, not replaced: models/controller.pt" in out
+    assert "Running stage 'features'" not in out
+    assert {f: (p.root / f).read_bytes() for f in kept} == kept
+    status = p.dvc("status", "--with-deps", "train").stdout
+    assert "train:" in status and "deleted" not in status, status
+
+    # back to the settings the outputs were made with: nothing but compose has to run again
+    p.set_overrides(base)
+    again = p.dvc("repro", "train")
+    assert _ran(again.stdout) == {"guard", "compose"}, again.stdout
+    assert {f: (p.root / f).read_bytes() for f in kept} == kept
+    assert _tree(rec) == recordings
