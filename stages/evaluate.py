@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from expoctl.errors import InputError
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
 from expoctl.host import host_cpu
@@ -63,8 +64,11 @@ def check_network(inputs: EvaluationInputs, root: Path) -> None:
     once with an InputError naming the file (not minutes later in a worker)."""
     if "learned" not in inputs.evaluate.controllers:
         return
-    onnx = inputs.controller_params("learned").get("backend", "torch") == "onnx"
-    check_checkpoint(inputs.learned_model_path(root), onnx=onnx)
+    path = inputs.learned_model_path(root)
+    if not path.is_file():
+        raise InputError(f"{path}: trained model missing — the 'learned' controller cannot run; run the train and "
+                         "select_model stages first (or drop 'learned' from evaluate.controllers)")
+    check_checkpoint(path, onnx=inputs.controller_params("learned").get("backend", "torch") == "onnx")
 
 
 def _fmt(v) -> str:

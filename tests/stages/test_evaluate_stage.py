@@ -102,7 +102,7 @@ def _no_evaluation(*args, **kwargs):
 
 @pytest.mark.parametrize("damage", ["truncated", "random", "shapes", "onnx_missing"])
 def test_a_bad_final_model_stops_the_stage_before_any_evaluation(tmp_path, monkeypatch, damage):
-    """Before: a truncated models/controller_final.pt failed only after the whole evaluation (~48 s at fixture
+    """Before: a truncated models/controller_final.pt failed only after the whole evaluation (18 s at fixture
     scale) with `[Errno 22] Invalid argument`. Now the stage checks the network first and names the file."""
     import torch
 
