@@ -30,6 +30,16 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     p.set_overrides(["scale=fixture", "iteration3.enabled=true", "select_model.enabled=true"])
     first = p.dvc("repro")
     assert _ran(first.stdout) == ALL_STAGES, first.stdout
+    # the README's commands to compare experiments fit in 120 columns (a bare `dvc exp show` is ~410 wide)
+    shown = p.dvc("exp", "show", "--md", "--drop", ".*", "--keep", "^(Experiment|overrides|val_loss)$").stdout
+    rows = shown.strip().splitlines()
+    assert max(map(len, rows)) <= 120, shown
+    assert [c.strip() for c in rows[0].strip("|").split("|")] == ["Experiment", "val_loss", "overrides"], shown
+    assert "iteration3.enabled=true" in shown, shown
+    diff = p.dvc("metrics", "diff", "--all").stdout
+    assert max(map(len, diff.splitlines())) <= 120, diff
+    for key in ("val_loss", "dynamic_min_nfm.test.viso.learned", "vo_tracked.agae.map", "vo_tracked.learned.runs"):
+        assert key in diff, diff
     frames = pd.read_parquet(p.root / "data" / "frames.parquet")
     assert {"sequence", "frame_id", "camera", "timestamp_ns", "gain_db", "exposure_us", "image_path", "split",
             "section"} <= set(frames.columns)
