@@ -49,6 +49,8 @@ def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> No
     logging.getLogger("alembic").setLevel(logging.WARNING)
     try:
         cfg = for_iteration(load_resolved(), args.iteration)
+        if copied_when_disabled(stage, cfg):
+            return
         with tracked_run(name, cfg) as tracker:
             run(cfg, tracker)
     except InputError as exc:
@@ -61,6 +63,46 @@ def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> No
         print(f"expoctl {stage}: failed (a bug: please report the traceback below).\n{outputs_left(name, started)}",
               file=sys.stderr)
         raise
+
+
+#: What a stage of a disabled later iteration would recompute unchanged (its collect records no sequences, so its data
+#: is the previous iteration's): `paths` keys of files and directories, and file names under `paths.reports_dir`.
+#: They are copied instead, with no MLflow run. collect (an empty raw directory) and train (its own copy, logged) run.
+COPIED_WHEN_DISABLED: dict[str, tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]] = {
+    "ingest": (("frames",), ("images_dir",), ()),
+    "features": (("features", "matches"), (), ()),
+    "labels": (("labels",), (), ("labels.md", "labels.json")),
+    "samples": (("samples",), (), ()),
+}
+
+
+def copied_when_disabled(stage: str, cfg: dict[str, Any]) -> bool:
+    """For a stage of a disabled iteration N >= 2 in COPIED_WHEN_DISABLED: copy iteration N-1's outputs atomically
+    and say so in one line; True if it did (nothing else to do)."""
+    import shutil
+
+    from expoctl.io import atomic_dir, atomic_path
+
+    if cfg.get("iteration", 1) == 1 or stage not in COPIED_WHEN_DISABLED or cfg["iteration_block"].get("enabled", True):
+        return False
+    n, prev, paths = cfg["iteration"], cfg["paths_prev"], cfg["paths"]
+    files, dirs, reports = COPIED_WHEN_DISABLED[stage]
+    pairs = [(prev[k], paths[k]) for k in files + dirs]
+    pairs += [(f"{prev['reports_dir']}/{r}", f"{paths['reports_dir']}/{r}") for r in reports]
+    missing = [src for src, _ in pairs if not (PROJECT_ROOT / src).exists()]
+    if missing:
+        raise InputError(f"iteration {n} is disabled, so {stage} copies iteration {n - 1}'s outputs, but "
+                         f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} missing (run its stages first)")
+    for src, dst in pairs:
+        if (PROJECT_ROOT / src).is_dir():
+            with atomic_dir(PROJECT_ROOT / dst) as tmp:
+                shutil.copytree(PROJECT_ROOT / src, tmp, dirs_exist_ok=True)
+        else:
+            with atomic_path(PROJECT_ROOT / dst) as tmp:
+                shutil.copyfile(PROJECT_ROOT / src, tmp)
+    logging.getLogger(__name__).info("iteration %d is disabled (iteration%d.enabled: false): copied iteration %d's %s",
+                                     n, n, n - 1, ", ".join(dst for _, dst in pairs))
+    return True
 
 
 def outputs_left(dvc_stage: str, started: float) -> str:
