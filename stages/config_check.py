@@ -21,6 +21,7 @@ from expoctl.features.orb import OrbParams
 from expoctl.features.viso.params import parse_params as viso_params
 from expoctl.labels.samples import SampleConfig
 from expoctl.labels.targets import LabelConfig
+from expoctl.parallel import ParallelConfig
 from expoctl.raw.ingest import IngestConfig
 from expoctl.report.results import ReportConfig
 from expoctl.selection.model_selection import SelectConfig
@@ -35,7 +36,8 @@ from stages.train import configs as train_configs
 #: The resolved config's top-level keys: conf/config.yaml's groups (its defaults list) and own keys, and what the
 #: scale presets (conf/scale/*.yaml, package _global_) add. tests/stages/test_config_check.py checks it against conf/.
 TOP_LEVEL_KEYS = ("sensor", "world", "rig", "controllers", "collect", "ingest", "features", "labels", "samples",
-                  "model", "train", "select_model", "evaluate", "report", "seed", "paths", "scale_name") + tuple(
+                  "model", "train", "select_model", "evaluate", "report", "parallel", "seed", "paths",
+                  "scale_name") + tuple(
     f"iteration{n}" for n in range(2, LAST_ITERATION + 1))
 #: `paths` (conf/config.yaml); an `iteration<N>.paths` block overrides some of them, all but the final model
 PATH_KEYS = ("raw_dir", "frames", "images_dir", "features", "matches", "labels", "samples", "model", "final_model",
@@ -53,6 +55,7 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
                        (SampleConfig.from_dict, "samples"), (ReportConfig.from_dict, "report")):
         problems.collect(build, top.value(key, None))
     problems.collect(train_configs, cfg)  # model, train, seed: as the train stage builds them
+    ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems)  # where jobs run (as collect reads it)
     select = SelectConfig.from_dict(top.value("select_model", None), "select_model", problems)
     evaluation = EvaluationInputs.from_resolved(cfg, problems)  # evaluate, features, world, rig, sensor, controllers
     problems.collect(OrbParams.from_dict, evaluation.features.orb)  # evaluate runs both front ends, whatever

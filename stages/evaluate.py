@@ -21,6 +21,7 @@ from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
 from expoctl.host import host_cpu
 from expoctl.net.checkpoint import check_checkpoint
+from expoctl.parallel import ParallelConfig
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -39,7 +40,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     inputs = EvaluationInputs.from_resolved(cfg)  # every config problem at once, before any work
     check_network(inputs, root)
     t0 = time.perf_counter()
-    result = evaluate(inputs, root, progress=sys.stderr.isatty())
+    result = evaluate(inputs, root, progress=sys.stderr.isatty(), parallel=ParallelConfig.from_resolved(cfg))
     seconds = time.perf_counter() - t0
     out = write_outputs(result, root / cfg["paths"]["reports_dir"])
     runs = result.runs

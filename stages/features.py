@@ -13,6 +13,7 @@ from expoctl.errors import InputError
 from expoctl.features.orb import OrbParams
 from expoctl.features.pipeline import FeaturesConfig, compute_features
 from expoctl.io import write_parquet
+from expoctl.parallel import ParallelConfig
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -22,6 +23,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
     paths = cfg["paths"]
     fcfg = FeaturesConfig.from_dict(cfg["features"])  # ConfigError before any work
+    parallel = ParallelConfig.from_resolved(cfg)  # where the sequences run
     frames_path = root / paths["frames"]
     if not frames_path.is_file():
         raise InputError(f"{frames_path}: frames table missing; run the ingest stage first")
@@ -37,7 +39,8 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
 
     t0 = time.perf_counter()
     reused_features, reused_matches, todo = _reusable_previous_iteration(cfg, root, frames, fcfg)
-    features, matches = compute_features(todo, root, fcfg, progress=True) if len(todo) else (None, None)
+    features, matches = (compute_features(todo, root, fcfg, progress=True, parallel=parallel) if len(todo)
+                         else (None, None))
     if reused_features is not None:
         features = pd.concat([t for t in (reused_features, features) if t is not None], ignore_index=True)
         matches = pd.concat([t for t in (reused_matches, matches) if t is not None], ignore_index=True)

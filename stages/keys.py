@@ -22,19 +22,20 @@ LAST_ITERATION = 3
 
 #: The keys each iteration-1 stage reads (the later iterations' additions are in `stage_keys`).
 STAGE_KEYS: dict[str, list[str]] = {
-    "collect": ["seed", "sensor", "world", "rig", "collect", "controllers.agae", "paths.raw_dir"],
+    # `parallel` (where the jobs run, never what they compute) is read by the stages that fan out
+    "collect": ["seed", "sensor", "world", "rig", "collect", "controllers.agae", "paths.raw_dir", "parallel"],
     "ingest": ["ingest", "paths.raw_dir", "paths.frames", "paths.images_dir"],
-    "features": ["features", "paths.frames", "paths.features", "paths.matches"],
+    "features": ["features", "paths.frames", "paths.features", "paths.matches", "parallel"],
     "labels": ["labels", "paths.frames", "paths.features", "paths.matches", "paths.labels", "paths.reports_dir"],
     "samples": ["samples", "paths.frames", "paths.labels", "paths.samples"],
     "train": ["seed", "model", "train", "sensor", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
               "paths.reports_dir"],
     # select_model reads every iteration's enabled flag and model path: the candidates
     "select_model": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "select_model",
-                     "paths.model", "paths.final_model", "paths.frames", "paths.reports_dir"]
+                     "paths.model", "paths.final_model", "paths.frames", "paths.reports_dir", "parallel"]
                     + [f"iteration{n}.{k}" for n in range(2, LAST_ITERATION + 1) for k in ("enabled", "paths.model")],
     "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "paths.final_model",
-                 "paths.frames", "paths.reports_dir"],
+                 "paths.frames", "paths.reports_dir", "parallel"],
     "report": ["report", "paths.reports_dir", "paths.final_model"],
 }
 

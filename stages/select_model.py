@@ -23,6 +23,7 @@ from expoctl.config_reader import Problems
 from expoctl.errors import InputError
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.net.checkpoint import check_checkpoint
+from expoctl.parallel import ParallelConfig
 from expoctl.selection.saturation_probe import summary_line
 from expoctl.selection.model_selection import Candidate, SelectConfig, probe_candidates, probe_filter, select_model
 from stages.common import PROJECT_ROOT, stage_main
@@ -74,6 +75,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     problems = Problems()  # every config problem at once, before any work
     scfg = SelectConfig.from_dict(cfg.get("select_model"), "select_model", problems)
     inputs = EvaluationInputs.from_resolved(cfg, problems)
+    parallel = ParallelConfig.from_resolved(cfg, problems)  # where the probe and the runs go
     problems.raise_if_any()
     cands = candidates(cfg, root)
     check_candidates(cands)
@@ -81,7 +83,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     pool = cands
     if scfg.probe.enabled and len(cands) > 1:
         t0 = time.perf_counter()
-        results = probe_candidates(inputs, cands, root, scfg.probe)
+        results = probe_candidates(inputs, cands, root, scfg.probe, parallel)
         pool = probe_filter(cands, results)
         failed = [c.name for c in cands if not results[c.name]["passes"]]
         probe = {"config": dataclasses.asdict(scfg.probe), "results": results, "failed": failed,
@@ -92,7 +94,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         for c in cands:
             log.info("probe %s", summary_line(c.name, results[c.name]))
     if scfg.enabled:
-        result = select_model(inputs, scfg, pool, root, progress=sys.stderr.isatty())
+        result = select_model(inputs, scfg, pool, root, progress=sys.stderr.isatty(), parallel=parallel)
         chosen, scores, reference, seconds = result.chosen, result.scores, result.reference, result.seconds
         windows = [{"sequence": w.sequence, "label": w.label, "start": w.start, "stop": w.stop}
                    for w in result.windows]

@@ -3,7 +3,8 @@
 Plan: for each route split (validation: world.cities.validation; test: world.cities.test), `n_traversals` traversals
 (their own speed, sun, sky; seeds disjoint from `collect`'s), and in each the configured windows around tunnels
 (`expoctl.evaluation.config`). One *run* = (window, controller); every controller of a window gets the same scene,
-sensor parameters, fixed-pattern noise and per-frame noise seeds. Runs fan out over processes (`n_jobs`).
+sensor parameters, fixed-pattern noise and per-frame noise seeds. Runs fan out over worker processes (`n_jobs`) or a
+Ray cluster (`expoctl.parallel`); their results are gathered in plan order whatever the order they finish in.
 
 SumLog: its parameters are tuned here, once per front end, before the fan-out, on sequential camera-1 pairs of the
 training split (data/frames.parquet → the raw PNGs), over the grid `features.sumlog`, maximising total inlier matches
@@ -21,9 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -35,6 +34,7 @@ from expoctl.evaluation.aggregate import add_section_ids, build_metrics, section
 from expoctl.evaluation.config import ROUTE_SPLITS, SplitPlan
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.features.sumlog import SumLogParams
+from expoctl.parallel import ParallelConfig, run_ordered
 
 
 @dataclass(frozen=True)
@@ -276,8 +276,9 @@ def _traversal_cached(city, w: Window, fps: float):
 
 
 def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
-             progress: bool = False) -> EvaluationResult:
-    """Plan, tune SumLog, run every (window, controller) and aggregate (no files written)."""
+             progress: bool = False, parallel: ParallelConfig | None = None) -> EvaluationResult:
+    """Plan, tune SumLog, run every (window, controller) and aggregate (no files written). `parallel`: where the
+    runs go (`run_jobs`); never changes a result."""
     from expoctl.controllers.registry import make_controller
 
     project_root = Path(project_root)
@@ -303,7 +304,7 @@ def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
     rows: list[dict] = []
     summaries: list[dict] = []
     thumbs: dict[str, dict] = {}
-    for job, (r, s, tb) in run_jobs(jobs, ecfg.n_jobs, progress):
+    for job, (r, s, tb) in run_jobs(jobs, ecfg.n_jobs, progress, parallel):
         rows.extend(r)
         summaries.append(s)
         thumbs[job.run_id] = tb
@@ -338,32 +339,14 @@ def write_outputs(result: EvaluationResult, reports_dir: str | os.PathLike) -> d
     return {"metrics": reports_dir / "metrics.json", "eval_dir": eval_dir}
 
 
-def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool) -> Iterator[tuple[RunJob, tuple]]:
-    """(job, `run_job(job)`) for every job as it finishes: in this process when n_jobs <= 1, else in n_jobs spawned
-    worker processes (one thread each)."""
+def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool,
+             parallel: ParallelConfig | None = None) -> Iterator[tuple[RunJob, tuple]]:
+    """(job, `run_job(job)`) for every job, in the order of `jobs`: where `parallel` says (`expoctl.parallel`; default
+    n_jobs spawned worker processes, one thread each, or this process when n_jobs <= 1)."""
     from tqdm import tqdm
 
-    from expoctl.host import single_threaded_children
-
-    bar = tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress)
-    try:
-        if n_jobs <= 1 or len(jobs) <= 1:
-            for job in jobs:
-                yield job, run_job(job)
-                bar.update()
-            return
-        # spawn: workers load torch (learned controller), which is not fork-safe; one thread each (2-core budget)
-        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(run_job, job): job for job in jobs}
-            try:
-                for fut in as_completed(futures):
-                    yield futures[fut], fut.result()
-                    bar.update()
-            except BaseException:
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
-    finally:
-        bar.close()
+    with tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress) as bar:
+        yield from run_ordered(run_job, jobs, n_jobs, parallel, progress=lambda _j, _r: bar.update())
 
 
 def metrics_summary(metrics: dict[str, Any]) -> dict[str, float]:

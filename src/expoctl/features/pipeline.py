@@ -5,15 +5,14 @@ extracted once per front end; its feature count goes to the `features` table. Fo
 pairings (camera i at t → camera j at t+1, i, j ∈ {1, 2}) are matched and go to the `matches` table (frame_id = t).
 Only two time steps are held in memory at a time.
 
-Sequences are independent, so they are spread over a process pool; results do not depend on n_jobs: every pair's
-RANSAC seed is a hash of (base seed, sequence, frame, cameras, front end), never of the order of work.
+Sequences are independent, so they are spread over workers (`expoctl.parallel`: processes on this host or a Ray
+cluster); results do not depend on n_jobs or the backend: every pair's RANSAC seed is a hash of (base seed, sequence,
+frame, cameras, front end), never of the order of work, and the tables are sorted.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import hashlib
-import multiprocessing
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ from expoctl.config_reader import Problems, Section, is_integer
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.frontend import PairCounts
 from expoctl.features.sumlog import SumLogGrid
+from expoctl.parallel import ParallelConfig, run_ordered
 from expoctl.raw.format import decode_8bit_image
 
 FRONTEND_NAMES = ("orb", "viso")
@@ -239,11 +239,13 @@ def compute_features(
     params: dict | FeaturesConfig,
     n_jobs: int | None = None,
     progress: bool = True,
+    parallel: ParallelConfig | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(features_df, matches_df) for every image and every consecutive pair of the frames table.
 
     params: the `features` config group (dict) or a FeaturesConfig. n_jobs: worker processes (None → params'
-    n_jobs; -1 → all cores; 1 → in this process). Bad input raises InputError naming the file/sequence/frame.
+    n_jobs; -1 → all cores; 1 → in this process). parallel: where the sequences run (default: worker processes on
+    this host); never changes a result. Bad input raises InputError naming the file/sequence/frame.
     """
     cfg = params if isinstance(params, FeaturesConfig) else FeaturesConfig.from_dict(params)
     for name in cfg.frontends:  # validate front-end params (and that the module imports) before any work
@@ -254,7 +256,7 @@ def compute_features(
     if not isinstance(n_jobs, int) or n_jobs < 1:
         raise ConfigError("features.n_jobs", f"must be a positive integer or -1, got {n_jobs!r}")
     tasks = _plan(frames_df, Path(project_root), cfg)
-    results = _run_tasks(tasks, n_jobs, progress)
+    results = _run_tasks(tasks, n_jobs, progress, parallel)
     feature_rows = [row for feats, _ in results for row in feats]
     match_rows = [row for _, matches in results for row in matches]
     features = pd.DataFrame(feature_rows, columns=FEATURES_COLUMNS)
@@ -271,43 +273,21 @@ def compute_features(
     return features, matches
 
 
-def _pool_context():
-    """forkserver where the OS has it, else spawn. Never plain fork: forking a process whose other threads (OpenCV's
-    pool, numba, tqdm's monitor) hold a lock leaves the child waiting on that lock forever (seen: workers stuck in
-    futex_wait). The fork server is a fresh single-threaded process that imports this module once; workers fork from
-    it, so they start in milliseconds instead of re-importing cv2/numba/pandas like spawned ones."""
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload([__name__])
-        return ctx
-    return multiprocessing.get_context("spawn")
-
-
-def _run_tasks(tasks: list[_SequenceTask], n_jobs: int, progress: bool) -> list[tuple[list, list]]:
-    """Run the per-sequence tasks (in order of the task list in the result), with a progress bar over images."""
+def _run_tasks(tasks: list[_SequenceTask], n_jobs: int, progress: bool,
+               parallel: ParallelConfig | None = None) -> list[tuple[list, list]]:
+    """Run the per-sequence tasks (results in task order), with a progress bar over images. Worker processes come
+    from a fork server (spawn where the OS has none), never plain fork: forking a process whose other threads
+    (OpenCV's pool, numba, tqdm's monitor) hold a lock leaves the child waiting on that lock forever (seen: workers
+    stuck in futex_wait). The fork server is a fresh single-threaded process that imports this module once; workers
+    fork from it, so they start in milliseconds instead of re-importing cv2/numba/pandas like spawned ones."""
     from tqdm import tqdm
 
     total_images = sum(len(t.paths) for t in tasks)
-    results: list[tuple[list, list] | None] = [None] * len(tasks)
     with tqdm(total=total_images, unit="img", desc="features", disable=not progress) as bar:
-        if n_jobs == 1 or len(tasks) == 1:
-            for i, task in enumerate(tasks):
-                results[i] = _process_sequence(task)
-                bar.update(len(task.paths))
-            return results  # type: ignore[return-value]
-        ctx = _pool_context()
-        with cf.ProcessPoolExecutor(max_workers=min(n_jobs, len(tasks)), mp_context=ctx,
-                                    initializer=_worker_init) as pool:
-            futures = {pool.submit(_process_sequence, task): i for i, task in enumerate(tasks)}
-            try:
-                for fut in cf.as_completed(futures):
-                    i = futures[fut]
-                    results[i] = fut.result()  # re-raises a worker's InputError here
-                    bar.update(len(tasks[i].paths))
-            except BaseException:
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
-    return results  # type: ignore[return-value]
+        return [result for _, result in run_ordered(_process_sequence, tasks, n_jobs, parallel,
+                                                    progress=lambda task, _r: bar.update(len(task.paths)),
+                                                    initializer=_worker_init, start_method="forkserver",
+                                                    preload=[__name__])]
 
 
 def iter_training_pairs_rgb(frames_df: pd.DataFrame, project_root: str | os.PathLike, camera: int = 1,

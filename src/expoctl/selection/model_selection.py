@@ -45,6 +45,7 @@ from expoctl.errors import ConfigError, InputError
 from expoctl.config_reader import Problems, Section
 from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, SplitPlan, read_split_plan
 from expoctl.evaluation.inputs import EvaluationInputs
+from expoctl.parallel import ParallelConfig
 from expoctl.selection.saturation_probe import ProbeConfig
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
@@ -156,19 +157,26 @@ def choose(candidates: Sequence[Candidate], scored: Sequence[dict]) -> Candidate
 
 
 def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], project_root: str | os.PathLike,
-                     pcfg: ProbeConfig) -> dict[str, dict]:
+                     pcfg: ProbeConfig, parallel: ParallelConfig | None = None) -> dict[str, dict]:
     """The saturation probe's result for each candidate (`SaturationProbe.run`), each network built as evaluate
-    builds it (controllers.learned's keys with the candidate's checkpoint)."""
-    from expoctl.controllers.registry import make_controller
-    from expoctl.selection.saturation_probe import make_probe, probe_all
+    builds it (controllers.learned's keys with the candidate's checkpoint). The candidates fan out as evaluate's runs
+    do (`evaluate.n_jobs`, `parallel`); a worker builds the probe's scene and AG+AE reference once."""
+    from expoctl.parallel import run_ordered
+    from expoctl.selection.saturation_probe import ProbeJob, make_probe, probe_job
 
     for c in candidates:
         if not Path(c.path).is_file():
             raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
     section = inputs.controller_params("learned")
-    probe = make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, inputs.controller_params("agae"), project_root)
-    return probe_all(probe, {c.name: (lambda p=c.path: make_controller("learned", {**section, "checkpoint": str(p)}))
-                             for c in candidates})
+    agae = dict(inputs.controller_params("agae"))
+    root = str(Path(project_root).resolve())
+    if not candidates:
+        return {}
+    if pcfg.city not in inputs.world.cities:  # before any worker starts (make_probe says it the same way)
+        make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, agae, root)
+    jobs = [ProbeJob(pcfg, inputs.world, inputs.rig, inputs.sensor, agae, root, c.name,
+                     {**section, "checkpoint": str(Path(c.path).resolve())}) for c in candidates]
+    return {job.name: result for job, result in run_ordered(probe_job, jobs, inputs.evaluate.n_jobs, parallel)}
 
 
 def probe_filter(candidates: Sequence[Candidate], results: dict[str, dict]) -> list[Candidate]:
@@ -181,8 +189,10 @@ def probe_filter(candidates: Sequence[Candidate], results: dict[str, dict]) -> l
 
 
 def select_model(inputs: EvaluationInputs, scfg: SelectConfig, candidates: Sequence[Candidate],
-                 project_root: str | os.PathLike = ".", progress: bool = False) -> SelectionResult:
-    """Drive every candidate (and the reference) over the selection windows; score; choose (no files written).
+                 project_root: str | os.PathLike = ".", progress: bool = False,
+                 parallel: ParallelConfig | None = None) -> SelectionResult:
+    """Drive every candidate (and the reference) over the selection windows (`run_jobs`, where `parallel` says);
+    score; choose (no files written).
 
     One candidate alone is returned without driving anything (nothing to choose between)."""
     from expoctl.evaluation.runner import RunJob, city_windows, run_jobs, tune_sumlog_params
@@ -216,7 +226,7 @@ def select_model(inputs: EvaluationInputs, scfg: SelectConfig, candidates: Seque
     if scfg.reference is not None:
         jobs += [RunJob(w, scfg.reference, inputs, sumlog, label=scfg.reference) for w in windows]
     rows, summaries = [], []
-    for job, (r, s, _thumbs) in run_jobs(jobs, ecfg.n_jobs, progress):
+    for job, (r, s, _thumbs) in run_jobs(jobs, ecfg.n_jobs, progress, parallel):
         rows.extend({**row, "candidate": job.label} for row in r)  # run_id is already job.run_id (named by label)
         summaries.append({**s, "candidate": job.label})
     frames = add_section_ids(pd.DataFrame(rows))

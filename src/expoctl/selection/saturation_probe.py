@@ -205,6 +205,38 @@ def make_probe(pcfg: ProbeConfig, world: "WorldConfig", rig: "RigConfig", sensor
     return SaturationProbe(pcfg, city, rig, world.render, sensor, make_controller("agae", dict(agae_params)))
 
 
+@dataclass(frozen=True)
+class ProbeJob:
+    """One candidate's probe, for a worker (picklable): the typed configs `make_probe` takes and the candidate's
+    `controllers.learned` keys with its checkpoint. The worker builds the probe (once per process and config) and
+    the network itself."""
+
+    pcfg: ProbeConfig
+    world: "WorldConfig"
+    rig: "RigConfig"
+    sensor: "SensorConfig"
+    agae_params: dict
+    project_root: str
+    name: str
+    learned_params: dict
+
+
+_PROBES: dict[bytes, SaturationProbe] = {}  # per process: building a probe drives AG+AE, so each config builds once
+
+
+def probe_job(job: ProbeJob) -> dict:
+    """`SaturationProbe.run` of one candidate network (runs in a worker, or in process)."""
+    import pickle
+
+    from expoctl.controllers.registry import make_controller
+
+    key = pickle.dumps((job.pcfg, job.world, job.rig, job.sensor, sorted(job.agae_params.items()), job.project_root))
+    if key not in _PROBES:
+        _PROBES.clear()
+        _PROBES[key] = make_probe(job.pcfg, job.world, job.rig, job.sensor, job.agae_params, job.project_root)
+    return _PROBES[key].run(make_controller("learned", dict(job.learned_params)))
+
+
 def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Controller]]) -> dict[str, dict]:
     """Run the probe for each named controller factory (a fresh controller per name)."""
     return {name: probe.run(factory()) for name, factory in controllers.items()}

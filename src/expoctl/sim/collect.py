@@ -14,7 +14,8 @@ sequence). The whole `out_dir` is also built beside the target and swapped in on
 so a failed or interrupted run leaves the previous data untouched and no stale sequences survive a config change.
 
 Config used: `CollectInputs`, built once by the collect stage from the resolved config's `collect`, `rig`, `sensor`,
-`world` (cities, city_dir, render), `seed` and `controllers.<reference_controller>`.
+`world` (cities, city_dir, render), `seed`, `controllers.<reference_controller>` and `parallel` (where the
+sequences render: `expoctl.parallel`; it never changes a byte).
 """
 
 from __future__ import annotations
@@ -22,9 +23,7 @@ from __future__ import annotations
 import os
 import time
 import zlib
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass
-from multiprocessing import get_context
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -35,7 +34,7 @@ from expoctl.camera.sensor import SensorConfig
 from expoctl.config_reader import Problems, Section, read_seed
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
-from expoctl.host import single_threaded_children
+from expoctl.parallel import ParallelConfig, run_ordered
 from expoctl.raw.format import SequenceWriter
 from expoctl.sim.closed_loop import RigConfig, RouteScene, clip_sections, make_sensors, rig_metadata, run_closed_loop
 from expoctl.world.city import WorldConfig
@@ -98,6 +97,7 @@ class CollectInputs:
     rig: RigConfig
     sensor: SensorConfig
     reference_params: dict  # controllers.<collect.reference_controller>, as given (checked by its factory)
+    parallel: ParallelConfig = field(default_factory=ParallelConfig)  # where the sequences render (never what)
 
     @classmethod
     def from_resolved(cls, cfg: dict[str, Any]) -> "CollectInputs":
@@ -108,7 +108,8 @@ class CollectInputs:
         inputs = cls(ccfg, read_seed(top), WorldConfig.from_dict(top.value("world", None), "world", problems),
                      RigConfig.from_dict(top.value("rig", None), "rig", problems),
                      SensorConfig.from_dict(top.value("sensor", None), "sensor", problems),
-                     controller_params(top.section("controllers"), ccfg.reference_controller))
+                     controller_params(top.section("controllers"), ccfg.reference_controller),
+                     ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems))
         problems.raise_if_any()
         return inputs
 
@@ -207,14 +208,19 @@ def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | 
     out_dir = Path(out_dir)
     summaries: list[dict[str, Any]] = []
     t0 = time.perf_counter()
+    finished = 0
+
+    def done(summary: dict[str, Any]) -> None:  # as each sequence finishes, whatever the order
+        nonlocal finished
+        finished += 1
+        if callable(progress):
+            progress(f"{finished}/{len(jobs)} {summary['sequence']}: {summary['n_frames']} frame pairs "
+                     f"({time.perf_counter() - t0:.0f} s elapsed)")
+
     with atomic_dir(out_dir) as tmp_root:
         lines = progress if callable(progress) else None
-        for summary in _run_jobs(inputs, jobs, tmp_root, inputs.collect.n_jobs, progress is True, lines,
-                                 progress_every_s):
-            summaries.append(summary)
-            if callable(progress):
-                progress(f"{len(summaries)}/{len(jobs)} {summary['sequence']}: {summary['n_frames']} frame pairs "
-                         f"({time.perf_counter() - t0:.0f} s elapsed)")
+        summaries = list(_run_jobs(inputs, jobs, tmp_root, inputs.collect.n_jobs, progress is True, lines,
+                                   progress_every_s, done))
     order = {j.name: i for i, j in enumerate(jobs)}
     return sorted(summaries, key=lambda s: order[s["sequence"]])
 
@@ -309,64 +315,34 @@ def controller_params(controllers: Section, name: str) -> dict:
 
 
 def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool,
-              lines: Callable[[str], None] | None = None, every_s: float = PROGRESS_EVERY_S) -> Iterator[dict]:
-    """Each finished sequence's summary. `lines`: where the in-sequence progress lines go (`FrameProgress`); from
-    worker processes they come back through a queue that is drained while waiting for the sequences."""
+              lines: Callable[[str], None] | None = None, every_s: float = PROGRESS_EVERY_S,
+              done: Callable[[dict], None] | None = None) -> Iterator[dict]:
+    """Each sequence's summary, in plan order, rendered where `inputs.parallel` says (`expoctl.parallel`). `lines`:
+    where the in-sequence progress lines go (`FrameProgress`); from workers they come back while the sequences
+    render. `done(summary)`: called as each sequence finishes."""
     from tqdm import tqdm
 
-    bar = tqdm(total=len(jobs), desc="collect", unit="seq", disable=not progress)
-    try:
-        if n_jobs <= 1 or len(jobs) <= 1:
-            for job in jobs:
-                ticker = None if lines is None else FrameProgress(lines, job.name, every_s)
-                yield collect_sequence(inputs, job, root, ticker)
-                bar.update()
-            return
-        # spawn (not fork): workers may load torch (learned reference controller), which is not fork-safe;
-        # one BLAS/torch thread per worker so n_jobs processes do not oversubscribe the cores
-        ctx = get_context("spawn")
-        queue = ctx.Queue() if lines is not None else None
-        with single_threaded_children(), ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx,
-                                                             initializer=_init_worker, initargs=(queue,)) as pool:
-            futures = [pool.submit(_collect_in_worker, inputs, job, root, every_s) for job in jobs]
-            try:
-                pending = set(futures)
-                while pending:
-                    done, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
-                    _drain(queue, lines)
-                    for fut in done:
-                        yield fut.result()
-                        bar.update()
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
-        _drain(queue, lines)  # the workers have exited, so every line they put is in the queue now
-    finally:
-        bar.close()
+    tasks = [_SequenceTask(inputs, job, str(root), every_s) for job in jobs]
+    with tqdm(total=len(jobs), desc="collect", unit="seq", disable=not progress) as bar:
+        for _, summary in run_ordered(_collect_task if lines is not None else _collect_task_quiet, tasks, n_jobs,
+                                      inputs.parallel, progress=lambda _t, s: (bar.update(), done and done(s)),
+                                      messages=lines):
+            yield summary
 
 
-_WORKER_QUEUE = None  # a worker process's channel for progress lines (set by `_init_worker`)
+@dataclass(frozen=True)
+class _SequenceTask:
+    """One worker job: a sequence to render under `root` (picklable)."""
+
+    inputs: CollectInputs
+    job: SequenceJob
+    root: str
+    every_s: float
 
 
-def _init_worker(queue) -> None:
-    global _WORKER_QUEUE
-    _WORKER_QUEUE = queue
+def _collect_task(task: _SequenceTask, emit: Callable[[str], None]) -> dict[str, Any]:
+    return collect_sequence(task.inputs, task.job, task.root, FrameProgress(emit, task.job.name, task.every_s))
 
 
-def _collect_in_worker(inputs: CollectInputs, job: SequenceJob, root: Path, every_s: float) -> dict[str, Any]:
-    ticker = None if _WORKER_QUEUE is None else FrameProgress(_WORKER_QUEUE.put, job.name, every_s)
-    return collect_sequence(inputs, job, root, ticker)
-
-
-def _drain(queue, lines: Callable[[str], None] | None) -> None:
-    import queue as queue_module
-
-    if queue is None:
-        return
-    while True:
-        try:
-            line = queue.get_nowait()
-        except queue_module.Empty:
-            return
-        lines(line)
+def _collect_task_quiet(task: _SequenceTask) -> dict[str, Any]:
+    return collect_sequence(task.inputs, task.job, task.root)
