@@ -8,7 +8,14 @@ baseline; the model is logged with mlflow.pytorch.log_model.
 Scale-out: the same command runs data-parallel under torchrun, e.g.
     torchrun --standalone --nproc_per_node 2 -m stages.train
 (gloo backend on CPU; `train.batch_size` stays the global batch). Only rank 0 opens the MLflow run and writes files.
-Give each process its share of the cores with `train.num_threads` (cores / nproc_per_node). On a SLURM cluster,
+Give each process its share of the cores with `train.num_threads` (cores / nproc_per_node).
+
+Device: `train.device` (auto | cpu | cuda; auto = cuda when torch.cuda.is_available()). On GPUs, one process per GPU
+(`--nproc_per_node <GPUs per node>`): the nccl backend, and each process trains on `cuda:<LOCAL_RANK>`; on the CPU,
+gloo as before. `train.device: cuda` on a machine without CUDA stops before any data load (ConfigError naming
+`train.device`). The checkpoint and the ONNX export are written from CPU tensors on any device. The device is not part
+of the result, but `train.device` sits in the `train` group, which is all in the train stage's DVC params
+(stages/keys.py): changing it (e.g. auto → cuda) re-runs train; `auto` resolves per machine without a re-run. On a SLURM cluster,
 one task per node, e.g. 2 nodes × 4 processes:
     srun --nodes 2 --ntasks-per-node 1 --cpus-per-task 32 torchrun --nnodes 2 --nproc_per_node 4 \
         --rdzv_backend c10d --rdzv_endpoint "$(scontrol show hostnames $SLURM_NODELIST | head -1):29500" -m stages.train
@@ -31,7 +38,7 @@ from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import InputError
 from expoctl.io import write_json
 from expoctl.net.model import ModelConfig
-from expoctl.net.train import TrainConfig, fit, predict
+from expoctl.net.train import TrainConfig, fit, predict, resolve_device
 from expoctl.net.checkpoint import checkpoint_dict, export_onnx
 
 log = logging.getLogger("expoctl.train")
@@ -69,10 +76,32 @@ def camera_response(cfg: dict, train_cfg: TrainConfig):
     return SensorConfig.from_dict(cfg["sensor"], "sensor").response()
 
 
+def training_device(train_cfg: TrainConfig) -> torch.device:
+    """`train.device` for this process: under torchrun, CUDA device LOCAL_RANK (one GPU per process)."""
+    local_rank = os.environ.get("LOCAL_RANK")
+    return resolve_device(train_cfg.device, int(local_rank) if local_rank is not None else None)
+
+
+def _backend() -> str:
+    """The process group's backend under torchrun: nccl when this process will train on CUDA, else gloo. A config
+    that does not read falls back to gloo: the stage reports its problems itself."""
+    from stages.project import load_resolved
+
+    if not torch.cuda.is_available():
+        return "gloo"
+    try:
+        device = TrainConfig.from_dict(load_resolved().get("train")).device
+    except InputError:
+        return "gloo"
+    return "gloo" if device == "cpu" else "nccl"
+
+
 def train_from_config(cfg: dict, on_epoch=None, sets=None):
     """Load data (unless `sets` given) and fit; shared by this stage and the sweep. Returns (result, sets, configs)."""
     model_cfg, train_cfg, seed = configs(cfg)
     response = camera_response(cfg, train_cfg)  # before the data load: a config problem costs nothing
+    device = training_device(train_cfg)  # likewise: cuda without CUDA stops here
+    log.info("training on %s", device)
     paths = cfg["paths"]
     if sets is None:
         sets = load_sample_sets_from_files(_path(paths["samples"]), _path(paths["frames"]), _path(paths["images_dir"]),
@@ -81,7 +110,7 @@ def train_from_config(cfg: dict, on_epoch=None, sets=None):
         if split not in sets:
             raise InputError(f"{paths['samples']}: no samples with split '{split}'")
     result = fit(model_cfg, train_cfg, sets["train"], sets["validation"], seed, on_epoch=on_epoch, log=log.info,
-                 response=response)
+                 response=response, device=device)
     return result, sets, (model_cfg, train_cfg, seed)
 
 
@@ -198,7 +227,10 @@ def main() -> None:
 
     distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
     if distributed:
-        dist.init_process_group("gloo")
+        backend = _backend()
+        if backend == "nccl":
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
+        dist.init_process_group(backend)
     try:
         if not distributed or dist.get_rank() == 0:
             stage_main("train", run)

@@ -11,10 +11,10 @@ import torch
 
 from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.errors import ConfigError, InputError
-from expoctl.net.model import ModelConfig
+from expoctl.net.model import ExposureNet, ModelConfig
 from tests.support.synthetic_data import make_synthetic_dataset
-from expoctl.net.train import (TrainConfig, complement_partners, error_sums, fit, hold_prediction, metrics_from_sums,
-                               predict, weighted_l1)
+from expoctl.net.train import (OnDevice, TrainConfig, complement_partners, error_sums, fit, hold_prediction,
+                               metrics_from_sums, predict, resolve_device, weighted_l1)
 from expoctl.net.checkpoint import checkpoint_dict, export_onnx, load_checkpoint
 
 TINY = ModelConfig(input_size=(32, 32), conv_kernels=(3, 3, 3), pool=2, conv_widths=(8, 16, 16, 32),
@@ -229,3 +229,111 @@ def test_dynamo_exporter_matches_torch(sets, tmp_path):
     sess = ort.InferenceSession(str(tmp_path / "d.onnx"), providers=["CPUExecutionProvider"])
     x, _ = sets["validation"].batch(np.arange(len(sets["validation"])))
     assert np.abs(sess.run(None, {"input": x.numpy()})[0] - predict(r.model, sets["validation"])).max() < 1e-4
+
+
+# ---------------------------------------------------------------------------------------------------- train.device
+
+def test_device_is_read_with_its_key_named():
+    assert TrainConfig.from_dict({}).device == "auto"
+    for v in ("auto", "cpu", "cuda"):
+        assert TrainConfig.from_dict({"device": v}).device == v  # reading never needs the device itself
+    with pytest.raises(ConfigError) as exc:
+        TrainConfig.from_dict({"device": "gpu", "lr": -1})
+    assert exc.value.problems == [("train.device", "must be one of auto, cpu, cuda, got 'gpu'"),
+                                  ("train.lr", "must be > 0, got -1.0")]
+    for bad in (["cuda"], 0, None):
+        with pytest.raises(ConfigError, match="train.device"):
+            TrainConfig.from_dict({"device": bad})
+    with pytest.raises(ConfigError, match="train.device"):
+        TrainConfig(device="tpu").validate()
+
+
+def test_auto_resolves_to_cpu_here_and_cuda_without_cuda_is_named(monkeypatch):
+    if not torch.cuda.is_available():  # this machine (no GPU): auto is the CPU
+        assert resolve_device("auto") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == resolve_device("cpu") == torch.device("cpu")
+    with pytest.raises(ConfigError, match="train.device") as exc:
+        resolve_device("cuda")
+    assert "torch.cuda.is_available() is False" in str(exc.value)
+    with pytest.raises(ConfigError, match="train.device"):
+        resolve_device("gpu")
+
+
+def test_cuda_resolution_picks_the_local_rank(monkeypatch):
+    """The resolution logic only (no CUDA here): one GPU per torchrun process, cuda:<LOCAL_RANK>."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
+    assert resolve_device("cuda", local_rank=1) == torch.device("cuda", 1)
+    assert resolve_device("auto", local_rank=0) == torch.device("cuda", 0)
+    assert resolve_device("auto") == torch.device("cuda", 0)  # not under torchrun: the current device
+    assert resolve_device("cpu", local_rank=1) == torch.device("cpu")
+    with pytest.raises(ConfigError, match="train.device"):
+        resolve_device("cuda", local_rank=2)  # more processes than GPUs on the node
+
+
+def test_cuda_without_cuda_stops_fit_before_any_work(sets, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(ConfigError, match="train.device"):
+        fit(TINY, TrainConfig(epochs=1, device="cuda"), sets["train"], sets["validation"], seed=0)
+
+
+def test_cpu_run_is_identical_to_the_default_and_returns_a_cpu_model_in_eval_mode(sets):
+    base = dict(lr=3e-3, batch_size=32, epochs=2, patience=4, num_threads=1, clipped_frame_weight=1.0)
+    auto = fit(TINY, TrainConfig(**base), sets["train"], sets["validation"], seed=5)
+    cpu = fit(TINY, TrainConfig(**base, device="cpu"), sets["train"], sets["validation"], seed=5)
+    given = fit(TINY, TrainConfig(**base), sets["train"], sets["validation"], seed=5, device=torch.device("cpu"))
+    for other in (cpu, given):
+        for (k, a), b in zip(auto.model.state_dict().items(), other.model.state_dict().values()):
+            assert torch.equal(a, b), k
+        assert [h["val_loss"] for h in other.history] == [h["val_loss"] for h in auto.history]
+        assert other.metrics["val_follow"] == auto.metrics["val_follow"]
+    assert not auto.model.training
+    assert {v.device.type for v in auto.model.state_dict().values()} == {"cpu"}
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_fit_trains_model_and_batches_on_the_device(sets, monkeypatch):
+    """The `meta` device stands in for a GPU (shapes only, no values): the model's parameters, each batch's inputs
+    (through the network's forward) and targets reach the loss on the device. Stopped at the first loss, before
+    anything would need values."""
+    import expoctl.net.train as train_mod
+
+    seen = {}
+
+    def spy(pred, target, epsilon):
+        seen.update(pred=pred.device, target=target.device)
+        raise _Stop
+
+    monkeypatch.setattr(train_mod, "weighted_l1", spy)
+    to_calls = []
+    real_to = train_mod.ExposureNet.to
+
+    def model_to(self, *a, **k):
+        to_calls.append(a)
+        return real_to(self, *a, **k)
+
+    monkeypatch.setattr(train_mod.ExposureNet, "to", model_to)
+    with pytest.raises(_Stop):
+        fit(TINY, TrainConfig(epochs=1, batch_size=32, num_threads=1), sets["train"], sets["validation"], seed=0,
+            device="meta")
+    assert seen == {"pred": torch.device("meta"), "target": torch.device("meta")}
+    assert to_calls == [(torch.device("meta"),)]
+
+
+def test_on_device_wrapper_shares_the_models_mode_and_is_transparent_on_cpu(sets):
+    model = ExposureNet(TINY)
+    wrapped = OnDevice(model, torch.device("cpu"))
+    wrapped.eval()
+    assert not model.training and not wrapped.training
+    model.train()  # the model's own mode is what helpers that save and restore `.training` see
+    assert wrapped.training
+    model.eval()
+    x, _ = sets["validation"].batch(np.arange(4))
+    with torch.no_grad():
+        assert torch.equal(wrapped(x), model(x))
+    assert list(wrapped.parameters()) == list(model.parameters())

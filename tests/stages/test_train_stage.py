@@ -152,3 +152,84 @@ def test_stage_entry_point_unchanged_under_torchrun(tmp_path):
     runs = client.search_runs([exp.experiment_id])
     assert [r.data.tags["stage"] for r in runs] == ["train"]  # one run, from rank 0 only
     assert runs[0].data.metrics["final.n_processes"] == 2
+
+
+# ---------------------------------------------------------------------------------------------------- train.device
+
+class _Tracker:
+    def log_params(self, *a, **k): ...
+    def log_metrics(self, *a, **k): ...
+    def log_artifact(self, *a, **k): ...
+
+
+def test_bad_device_is_named_before_work(tmp_path):
+    cfg = make_cfg(tmp_path, device="gpu")
+    with pytest.raises(ConfigError, match="train.device"):
+        stage.run(cfg, None)
+    assert not (tmp_path / "models").exists()
+
+
+def test_cuda_without_cuda_fails_before_the_data_load(tmp_path, monkeypatch):
+    cfg = make_cfg(tmp_path, device="cuda")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+
+    def no_load(*a, **k):
+        raise AssertionError("the data were loaded before the device was checked")
+
+    monkeypatch.setattr(stage, "load_sample_sets_from_files", no_load)
+    with pytest.raises(ConfigError, match="train.device") as exc:
+        stage.run(cfg, None)
+    assert "cuda" in str(exc.value)
+    assert not (tmp_path / "models").exists()
+
+
+def test_device_follows_local_rank_under_torchrun(monkeypatch):
+    from expoctl.net.train import TrainConfig
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 4)
+    monkeypatch.setenv("LOCAL_RANK", "2")
+    assert stage.training_device(TrainConfig(device="cuda")) == torch.device("cuda", 2)
+    assert stage.training_device(TrainConfig(device="auto")) == torch.device("cuda", 2)
+    assert stage.training_device(TrainConfig(device="cpu")) == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert stage.training_device(TrainConfig(device="auto")) == torch.device("cpu")
+
+
+@pytest.mark.parametrize("cuda, device, backend", [(False, "auto", "gloo"), (False, "cuda", "gloo"),
+                                                   (True, "auto", "nccl"), (True, "cuda", "nccl"),
+                                                   (True, "cpu", "gloo"), (True, "gpu", "gloo")])
+def test_torchrun_backend_nccl_on_cuda_gloo_on_cpu(monkeypatch, cuda, device, backend):
+    """main() under torchrun (WORLD_SIZE > 1): nccl and cuda:<LOCAL_RANK> when the process trains on CUDA, gloo
+    otherwise (a bad or unavailable device falls back to gloo: the stage then reports it). The process group and
+    the stage are recorded, not run."""
+    import stages.common
+    import stages.project
+
+    calls = []
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: cuda)
+    monkeypatch.setattr(torch.cuda, "set_device", lambda i: calls.append(("set_device", i)))
+    monkeypatch.setattr(stages.project, "load_resolved", lambda: {"train": {"device": device}})
+    monkeypatch.setattr(stage.dist, "init_process_group", lambda b: calls.append(("init", b)))
+    monkeypatch.setattr(stage.dist, "get_rank", lambda: 0)
+    monkeypatch.setattr(stage.dist, "destroy_process_group", lambda: calls.append(("destroy",)))
+    monkeypatch.setattr(stages.common, "stage_main", lambda name, run: calls.append(("stage", name)))
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    monkeypatch.setenv("LOCAL_RANK", "1")
+    stage.main()
+    expect = [("set_device", 1)] if backend == "nccl" else []
+    assert calls == expect + [("init", backend), ("stage", "train"), ("destroy",)]
+
+
+def test_cpu_run_is_identical_to_the_default(tmp_path):
+    """train.device: cpu writes the same weights as a config without the key (auto, on this CPU machine); the
+    checkpoint holds CPU tensors."""
+    cfg = make_cfg(tmp_path, device="cpu")
+    stage.run(cfg, _Tracker())
+    _, ckpt = load_checkpoint(tmp_path / "models" / "controller.pt")
+    default = {**cfg, "train": {k: v for k, v in cfg["train"].items() if k != "device"}}
+    result, _, _ = stage.train_from_config(default)
+    assert ckpt["train_config"]["device"] == "cpu"
+    assert {v.device.type for v in ckpt["state_dict"].values()} == {"cpu"}
+    for k, v in result.model.state_dict().items():
+        assert torch.equal(ckpt["state_dict"][k], v), k

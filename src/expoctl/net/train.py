@@ -33,6 +33,13 @@ Distributed data parallel: when `torch.distributed` is initialised (torchrun), e
 share of every global batch (`batch_size` stays the global batch, so hyperparameters mean the same at any
 process count), gradients are averaged by DDP, validation sums are all-reduced, and every rank reaches the same
 early-stopping decision. Only rank 0 calls `on_epoch`. Library code: no MLflow/Hydra here.
+
+Device (`device`: auto | cpu | cuda; `resolve_device`): the model and every batch (inputs and targets) live on the
+training device; helpers that build their own CPU inputs (`predict`, the camera follow, the clipped-frame prior and
+its probe) see the model through `OnDevice`, which moves their inputs there and the outputs back. The returned model
+is always on the CPU, so checkpoints and the ONNX export do not depend on where training ran. On the CPU every move is
+a no-op (`Tensor.to` returns the tensor itself): results are bit-identical to a build without the option. CUDA runs
+are not bit-identical to CPU runs (other kernels), nor guaranteed run to run (cuDNN).
 """
 
 from __future__ import annotations
@@ -54,6 +61,7 @@ from expoctl.net.dataset import SampleSet, predict
 from expoctl.net.exposure_shift import MAX_SHIFT_EV, ExposureShift, draw_shifts
 from expoctl.net.clipped_frames import clipped_frame_loss, uniform_frame_steps
 from expoctl.camera.response import Response
+from expoctl.config_reader import Section
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
 
@@ -85,6 +93,8 @@ class TrainConfig:
     clipped_frame_weight: float = 0.0
     clipped_frame_samples: int = 4
     clipped_frame_margin_ev: tuple[float, float] = (0.178, 0.51)
+    # where training runs: auto (cuda when torch.cuda.is_available(), else cpu) | cpu | cuda (resolve_device)
+    device: str = "auto"
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
@@ -103,6 +113,10 @@ class TrainConfig:
         converters.update({k: (_ev_pair, "two numbers in EV") for k in ("exposure_shift_ev", "clipped_frame_margin_ev")})
         converters.update({k: (_optional_int, "an integer or null") for k in ("max_train_samples",
                                                                                "max_validation_samples")})
+        if "device" in d:  # read with the config reader: a bad value is named train.device, the default stands in
+            section = Section(d, prefix)
+            d["device"] = section.choice("device", DEVICES, "auto")
+            problems += section.problems.items
         for k, (convert, what) in converters.items():
             if k in d:
                 try:
@@ -142,6 +156,7 @@ class TrainConfig:
              "must be [white, black] EV per frame, each in [0, 2]"),
             ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
+            ("device", self.device in DEVICES, f"must be one of {', '.join(DEVICES)}"),
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
             ("mlflow_model_format", self.mlflow_model_format in ("pt2", "pickle"), "must be pt2 or pickle"),
             ("train_subset", self.train_subset in ("fixed", "per_epoch"), "must be fixed or per_epoch"),
@@ -152,6 +167,48 @@ class TrainConfig:
         problems = [(f"{prefix}.{key}", f"{problem}, got {getattr(self, key)}") for key, ok, problem in checks if not ok]
         if problems:  # every one at once
             raise ConfigError.of(problems)
+
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(setting: str, local_rank: int | None = None, key: str = "train.device") -> torch.device:
+    """`train.device` → the torch device: auto = cuda if torch.cuda.is_available() else cpu. CUDA picks device
+    `local_rank` (one GPU per torchrun process; the stage passes LOCAL_RANK), else the current CUDA device. Asking for
+    cuda where there is none is a ConfigError naming `key` (the stage checks before loading any data)."""
+    if setting not in DEVICES:
+        raise ConfigError(key, f"must be one of {', '.join(DEVICES)}, got {setting!r}")
+    if setting == "cpu" or (setting == "auto" and not torch.cuda.is_available()):
+        return torch.device("cpu")
+    if not torch.cuda.is_available():
+        raise ConfigError(key, "cuda, but torch.cuda.is_available() is False here (no GPU, no driver, or a CPU-only "
+                               f"torch {torch.__version__}); use auto or cpu")
+    index = torch.cuda.current_device() if local_rank is None else int(local_rank)
+    if not 0 <= index < torch.cuda.device_count():
+        raise ConfigError(key, f"cuda:{index} (local rank) but this node has {torch.cuda.device_count()} GPU(s)")
+    return torch.device("cuda", index)
+
+
+class OnDevice(nn.Module):
+    """`model` seen from anywhere: inputs move to `device`, outputs back to the input's device (gradients flow
+    through both moves). For the helpers that build CPU inputs; on the CPU both moves are no-ops."""
+
+    def __init__(self, model: nn.Module, device: torch.device):
+        super().__init__()
+        self.model = model
+        self.device = torch.device(device)
+
+    # train/eval mode is the wrapped model's: helpers that save and restore `.training` see the model's own state
+    @property
+    def training(self) -> bool:  # type: ignore[override]
+        return self.__dict__["_modules"]["model"].training if "model" in self.__dict__.get("_modules", {}) else True
+
+    @training.setter
+    def training(self, mode: bool) -> None:  # nn.Module.train sets it, then recurses into the wrapped model
+        pass
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.model(x.to(self.device)).to(x.device)
 
 
 def _ev_pair(v) -> tuple[float, float]:
@@ -224,17 +281,19 @@ def _average_bn_buffers(model: nn.Module, world: int) -> None:
 
 
 def evaluate(model: nn.Module, data: SampleSet, epsilon: float, batch_size: int = 256,
-             rows: np.ndarray | None = None) -> dict:
-    """Validation metrics; under DDP each rank evaluates an interleaved share and the sums are all-reduced."""
+             rows: np.ndarray | None = None, device: torch.device | str = "cpu") -> dict:
+    """Validation metrics; under DDP each rank evaluates an interleaved share and the sums are all-reduced (on
+    `device`: nccl reduces CUDA tensors only). `model` takes CPU inputs (wrap a model on another device in
+    `OnDevice`)."""
     rank, world = _dist_info()
     rows = np.arange(len(data)) if rows is None else rows
     mine = rows[rank::world]
     pred = predict(model, data, batch_size, mine)
     sums = error_sums(pred, data.targets[torch.as_tensor(mine, dtype=torch.long)].numpy(), epsilon, data.exposure_scale)
     if world > 1:
-        t = torch.from_numpy(sums)
+        t = torch.from_numpy(sums).to(device)
         dist.all_reduce(t)
-        sums = t.numpy()
+        sums = t.cpu().numpy()
     return metrics_from_sums(sums, epsilon)
 
 
@@ -251,7 +310,7 @@ def hold_prediction(data: SampleSet, rows: np.ndarray) -> np.ndarray:
 
 @dataclass
 class TrainResult:
-    model: ExposureNet  # best-validation weights, eval mode, unwrapped
+    model: ExposureNet  # best-validation weights, eval mode, unwrapped, on the CPU (whatever the training device)
     best_epoch: int
     epochs_run: int
     history: list[dict]
@@ -266,9 +325,11 @@ def _subset(n: int, limit: int | None, rng: np.random.Generator) -> np.ndarray:
 
 def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: SampleSet, seed: int,
         on_epoch: Callable[[int, dict], None] | None = None, log: Callable[[str], None] | None = None,
-        response: Response | None = None) -> TrainResult:
+        response: Response | None = None, device: torch.device | str | None = None) -> TrainResult:
     """Train on `train`, early-stop on `validation` loss, return the best model and metrics (see module doc).
-    `response`: the camera response the images were encoded with, needed for `exposure_shift_probability` > 0."""
+    `response`: the camera response the images were encoded with, needed for `exposure_shift_probability` > 0.
+    `device`: where to train; None resolves `cfg.device` (`resolve_device`, the current CUDA device)."""
+    device = resolve_device(cfg.device) if device is None else torch.device(device)
     shifter = None
     if cfg.exposure_shift_probability > 0:
         if response is None:
@@ -292,10 +353,11 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
     if cfg.batch_size < 2 * world:
         raise ConfigError("train.batch_size", f"{cfg.batch_size} is too small for {world} processes (≥ 2 each)")
 
-    model = ExposureNet(model_cfg)
+    model = ExposureNet(model_cfg).to(device)  # initialised on the CPU (same weights on any device), then moved
+    on_device = OnDevice(model, device)  # for the helpers that build CPU inputs
     net: nn.Module = model
     if world > 1:
-        net = nn.parallel.DistributedDataParallel(model)
+        net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
     torch.manual_seed(seed * 1000 + rank)  # dropout masks differ per process, reproducibly
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
 
@@ -329,6 +391,7 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
             rows, flip, shift = perm[glob][rank::world], flips[glob][rank::world], shifts[glob][rank::world]
             if partners is None:
                 x, y = train.batch(rows, flip, shift, shifter)
+                x, y = x.to(device), y.to(device)
                 loss = weighted_l1(net(x), y, cfg.epsilon)
             else:  # first half: drawn samples; second half: their partners, same flips (module doc)
                 half = len(rows) // 2
@@ -336,13 +399,14 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
                 rows = np.concatenate([anchors, partners[anchors]])
                 seen[rows] = True
                 x, y = train.batch(rows, torch.cat([flip, flip]), torch.cat([shift, shift]), shifter)
+                x, y = x.to(device), y.to(device)
                 pred = net(x)
                 loss = (weighted_l1(pred, y, cfg.epsilon)
                         + cfg.consistency_weight * weighted_l1(pred[:half], pred[half:], cfg.epsilon))
             if prior_gen is not None:
                 loss = loss + cfg.clipped_frame_weight * clipped_frame_loss(
-                    model, cfg.clipped_frame_samples, cfg.clipped_frame_margin_ev, tuple(train.input_hw),
-                    train.exposure_scale, prior_gen)
+                    on_device, cfg.clipped_frame_samples, cfg.clipped_frame_margin_ev, tuple(train.input_hw),
+                    train.exposure_scale, prior_gen).to(device)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -355,10 +419,10 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
         samples_seen += n_sum
         train_loss = loss_sum / max(n_sum, 1)
         if world > 1:
-            t = torch.tensor([loss_sum, float(n_sum)], dtype=torch.float64)
+            t = torch.tensor([loss_sum, float(n_sum)], dtype=torch.float64, device=device)
             dist.all_reduce(t)
             train_loss = float(t[0] / max(t[1], 1))
-        val = evaluate(model, validation, cfg.epsilon, cfg.eval_batch_size, val_rows)
+        val = evaluate(on_device, validation, cfg.epsilon, cfg.eval_batch_size, val_rows, device)
         rec = {"train_loss": train_loss, **{f"val_{k}": v for k, v in val.items()},
                "epoch_seconds": dt, "train_samples_per_s": n_sum * world / dt if dt > 0 else float("nan")}
         history.append(rec)
@@ -380,16 +444,17 @@ def fit(model_cfg: ModelConfig, cfg: TrainConfig, train: SampleSet, validation: 
 
     model.load_state_dict(best[2])
     model.eval()
-    val = evaluate(model, validation, cfg.epsilon, cfg.eval_batch_size, val_rows)
+    val = evaluate(on_device, validation, cfg.epsilon, cfg.eval_batch_size, val_rows, device)
     const = constant_baseline(train)
     base_pred = np.broadcast_to(const, (len(val_rows), 2))
     val_targets = validation.targets.numpy()[val_rows]
     base = metrics_from_sums(error_sums(base_pred, val_targets, cfg.epsilon, validation.exposure_scale), cfg.epsilon)
     hold = metrics_from_sums(error_sums(hold_prediction(validation, val_rows), val_targets, cfg.epsilon,
                                         validation.exposure_scale), cfg.epsilon)
-    follow = camera_follow(model, validation, cfg.eval_batch_size)  # the whole split: every c111/c222 pair
-    white = uniform_frame_steps(model, 255, tuple(validation.input_hw), validation.exposure_scale)
-    black = uniform_frame_steps(model, 0, tuple(validation.input_hw), validation.exposure_scale)
+    follow = camera_follow(on_device, validation, cfg.eval_batch_size)  # the whole split: every c111/c222 pair
+    white = uniform_frame_steps(on_device, 255, tuple(validation.input_hw), validation.exposure_scale)
+    black = uniform_frame_steps(on_device, 0, tuple(validation.input_hw), validation.exposure_scale)
+    model.to("cpu")  # checkpoints and ONNX exports from CPU tensors, whatever the training device
     metrics = {
         **{f"val_{k}": v for k, v in val.items()},
         "val_follow": follow["follow"], "val_follow_bias_ev": follow["bias_ev"],
