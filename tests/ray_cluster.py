@@ -40,7 +40,8 @@ def _alive_nodes(address: str, env: dict) -> int:
 
 
 @contextlib.contextmanager
-def local_ray_cluster(n_nodes: int, temp_root: Path, object_store_mb: int = 200) -> Iterator[str]:
+def local_ray_cluster(n_nodes: int, temp_root: Path, object_store_mb: int = 200,
+                      cpus_per_node: int = 1) -> Iterator[str]:
     """Start the cluster; yield its address ('127.0.0.1:<port>'). The test process's environment gets RAY_ENV
     meanwhile (the driver must not ask for a token either)."""
     env = {**os.environ, **RAY_ENV}
@@ -48,7 +49,7 @@ def local_ray_cluster(n_nodes: int, temp_root: Path, object_store_mb: int = 200)
     address = f"127.0.0.1:{port}"
     saved = {k: os.environ.get(k) for k in RAY_ENV}
     os.environ.update(RAY_ENV)
-    common = ["--node-ip-address=127.0.0.1", "--num-cpus=1", "--num-gpus=0", "--disable-usage-stats",
+    common = ["--node-ip-address=127.0.0.1", f"--num-cpus={cpus_per_node}", "--num-gpus=0", "--disable-usage-stats",
               f"--object-store-memory={object_store_mb * 1024 * 1024}"]
     try:
         head = _ray("start", "--head", f"--port={port}", "--include-dashboard=false",
