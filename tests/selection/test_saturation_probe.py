@@ -143,3 +143,31 @@ def test_a_camera_stuck_at_the_shortest_exposure_and_lowest_gain_fails_on_the_da
         assert summary_line("stuck", result).endswith(": passes")
     finally:
         p.cfg = saved
+
+
+@pytest.mark.slow  # two spawned workers each build the probe (city, AG+AE reference) and a network
+def test_probe_candidates_in_worker_processes_equal_in_process(probe, tmp_path):
+    """probe_candidates fans the candidates out (expoctl.parallel): each worker builds its own probe and network, and
+    the results are those of one probe run in this process, candidate after candidate, in candidate order."""
+    import dataclasses
+    import shutil
+    from pathlib import Path
+
+    from expoctl.evaluation.inputs import EvaluationInputs
+    from expoctl.parallel import INPROCESS
+    from expoctl.selection.model_selection import Candidate, probe_candidates
+
+    p, cfg = probe
+    # the fixture project's checkpoint (the `probe` fixture's directory beside this test's tmp_path)
+    model = next(Path(tmp_path).parent.glob("probe*/models/controller.pt"), None)
+    assert model is not None
+    second = tmp_path / "controller2.pt"
+    shutil.copy(model, second)
+    cands = [Candidate("iteration1", 1, model), Candidate("iteration2", 2, second)]
+    cfg = {**cfg, "evaluate": {**cfg["evaluate"], "n_jobs": 2}}
+    inputs = EvaluationInputs.from_resolved(cfg)
+    pcfg = dataclasses.replace(p.cfg, offsets_ev=(6.0,))
+    here = probe_candidates(inputs, cands, model.parents[1], pcfg, INPROCESS)
+    workers = probe_candidates(inputs, cands, model.parents[1], pcfg)
+    assert list(workers) == ["iteration1", "iteration2"] and workers == here
+    assert here["iteration1"] == here["iteration2"]  # the same network, so the same verdict
