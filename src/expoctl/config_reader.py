@@ -253,6 +253,19 @@ class Section:
             self.problems.raise_if_any()
 
 
+def convert_values(d: dict, converters: Mapping[str, tuple[Callable[[Any], Any], str]], prefix: str,
+                   problems: list[tuple[str, str]]) -> None:
+    """In place: each key of `d` named in `converters` (key → (convert, what it must be)) converted; a value that
+    does not convert is recorded as `<prefix>.<key>` and dropped, so the dataclass default stands in while the other
+    keys are validated (for the dataclass readers that convert before validating: model, train)."""
+    for k, (convert, what) in converters.items():
+        if k in d:
+            try:
+                d[k] = convert(d[k])
+            except (TypeError, ValueError):
+                problems.append((f"{prefix}.{k}", f"must be {what}, got {d.pop(k)!r}"))
+
+
 def _described(kind: str, bounds: str, unit: str, nullable: bool) -> str:
     text = kind + (f" {bounds}" if bounds else "") + (f" {unit}" if unit and bounds else "")
     return text + (" or null" if nullable else "")

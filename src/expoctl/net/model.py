@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from expoctl.camera.ranges import EXPOSURE_SCALES
+from expoctl.config_reader import convert_values
 from expoctl.errors import ConfigError
 from expoctl.net.preprocess import N_INPUT_CHANNELS, as_hw
 
@@ -61,12 +62,7 @@ class ModelConfig:
         converters = {"input_size": (as_hw, "a size in pixels or [height, width]"), "pool": (int, "an integer"),
                       "dropout": (float, "a number"), "exposure_scale": (str, "a string"), "output": (str, "a string")}
         converters.update({k: (_int_tuple, "a list of integers") for k in ("conv_widths", "conv_kernels", "fc_widths")})
-        for k, (convert, what) in converters.items():
-            if k in d:
-                try:
-                    d[k] = convert(d[k])
-                except (TypeError, ValueError):
-                    problems.append((f"{prefix}.{k}", f"must be {what}, got {d.pop(k)!r}"))
+        convert_values(d, converters, prefix, problems)
         cfg = cls(**{k: v for k, v in d.items() if k in known})
         try:
             cfg.validate(prefix)

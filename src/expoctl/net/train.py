@@ -61,7 +61,7 @@ from expoctl.net.dataset import SampleSet, predict
 from expoctl.net.exposure_shift import MAX_SHIFT_EV, ExposureShift, draw_shifts
 from expoctl.net.clipped_frames import clipped_frame_loss, uniform_frame_steps
 from expoctl.camera.response import Response
-from expoctl.config_reader import Section
+from expoctl.config_reader import Section, convert_values
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
 
@@ -117,12 +117,7 @@ class TrainConfig:
             section = Section(d, prefix)
             d["device"] = section.choice("device", DEVICES, "auto")
             problems += section.problems.items
-        for k, (convert, what) in converters.items():
-            if k in d:
-                try:
-                    d[k] = convert(d[k])
-                except (TypeError, ValueError):
-                    problems.append((f"{prefix}.{k}", f"must be {what}, got {d.pop(k)!r}"))
+        convert_values(d, converters, prefix, problems)
         cfg = cls(**{k: v for k, v in d.items() if k in types})
         try:
             cfg.validate(prefix)
