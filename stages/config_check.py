@@ -95,9 +95,15 @@ def _check_controllers(controllers: dict[str, dict], problems: Problems) -> None
 
 def _check_collect(ccfg: CollectConfig, key: str, problems: Problems) -> None:
     """What CollectConfig leaves to the collect run: the reference controller must be one the registry builds."""
-    if ccfg.reference_controller is not None and ccfg.reference_controller not in CONTROLLERS:
+    # the oracle registers itself once the simulator is imported, but it needs the scene, which collect does not
+    # hand a reference controller: list the same names whatever has been imported
+    buildable = sorted(name for name in CONTROLLERS if name != "oracle")
+    if ccfg.reference_controller == "oracle":
+        problems.add(f"{key}.reference_controller", "the oracle cannot drive collect (it renders candidate frames "
+                     f"from the simulator's scene, which only evaluate gives it); use one of: {', '.join(buildable)}")
+    elif ccfg.reference_controller is not None and ccfg.reference_controller not in CONTROLLERS:
         problems.add(f"{key}.reference_controller", f"unknown controller {ccfg.reference_controller!r} "
-                     f"(known: {', '.join(sorted(CONTROLLERS))})")
+                     f"(known: {', '.join(buildable)})")
 
 
 def _check_cities(evaluation: EvaluationInputs, select: SelectConfig, project_root: Path, problems: Problems) -> None:

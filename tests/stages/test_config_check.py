@@ -51,6 +51,10 @@ def test_every_scale_preset_passes(scale):
     (["collect.reference_controller=auto"], [("collect.reference_controller",
                                                "unknown controller 'auto' (known: agae, fixed, learned, "
                                                "mean_intensity, shim, shin)")]),
+    (["collect.reference_controller=oracle"], [("collect.reference_controller",
+                                                 "the oracle cannot drive collect (it renders candidate frames from "
+                                                 "the simulator's scene, which only evaluate gives it); use one of: "
+                                                 "agae, fixed, learned, mean_intensity, shim, shin")]),
     (["seed=-1"], [("seed", "must be an integer >= 0, got -1")]),
     (["paths.frames=null"], [("paths.frames", "must be a non-empty string, got None")]),
 ])
