@@ -161,6 +161,36 @@ class Sensor:
         linear = (codes - cfg.black_level_dn) / (cfg.adc_max_dn - cfg.black_level_dn)
         # (ADC codes, 3): one column per colour channel (equal columns for a channel-uniform response)
         self._dn_to_8bit = np.ascontiguousarray(self.response.linear_to_8bit(np.repeat(linear[:, None], 3, axis=1)))
+        self._noise_memory: dict[tuple, tuple[np.ndarray, dict]] | None = None
+        self._noise_memory_size = 0
+        self.noise_draws = 0  # per-pixel normal fields drawn (not served from the memory)
+
+    def remember_noise(self, frames: int = 4) -> "Sensor":
+        """Reuse each frame's per-pixel normal field: a generator that starts from a state seen in the last `frames`
+        captures gets the field drawn then, and is left in the state drawing it left (so its later draws, the exact
+        Poisson uniforms, are its own). Exact: a generator's draws are a function of its state. In closed-loop
+        evaluation every controller and every oracle candidate captures frame t from the same fresh generator
+        (`sensor_rng(seed, camera, t)`), so the field is drawn once per frame instead of once per capture."""
+        self._noise_memory, self._noise_memory_size = {}, int(frames)
+        return self
+
+    def _normal_field(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        if self._noise_memory is None:
+            self.noise_draws += 1
+            return rng.standard_normal(shape, dtype=np.float32)
+        state = rng.bit_generator.state
+        key = (repr(state), shape)
+        hit = self._noise_memory.get(key)
+        if hit is not None:
+            z, after = hit
+            rng.bit_generator.state = after
+            return z
+        self.noise_draws += 1
+        z = rng.standard_normal(shape, dtype=np.float32)
+        if len(self._noise_memory) >= self._noise_memory_size:
+            del self._noise_memory[next(iter(self._noise_memory))]  # the oldest: frames arrive in order
+        self._noise_memory[key] = (z, rng.bit_generator.state)
+        return z
 
     def mean_electrons(self, luminance_cd_m2: np.ndarray, exposure_us: float) -> np.ndarray:
         """Expected collected electrons per pixel (before shot noise and clipping)."""
@@ -187,7 +217,7 @@ class Sensor:
         cfg = self.cfg
         lum = np.ascontiguousarray(luminance_cd_m2, dtype=np.float32)
         scale = np.float32(float(self._photons_per_cd_m2_us) * exposure_us * cfg.quantum_efficiency)
-        z = rng.standard_normal(lum.shape, dtype=np.float32)
+        z = self._normal_field(rng, lum.shape)  # read-only in the kernels, so a remembered field is safe
         n_small = _count_small(lum, self._gain_map, self._dark_map, scale, np.float32(cfg.poisson_exact_below))
         z_small = rng.random(max(n_small, 1), dtype=np.float32)
         k = np.float32(cfg.k0_dn_per_e * 10.0 ** (gain_db / 20.0))

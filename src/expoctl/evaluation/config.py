@@ -51,6 +51,9 @@ class EvaluateConfig:
     initial_exposure_us: float = 5000.0
     sensor_randomisation: float = 0.15
     render_size: tuple[int, int] | None = None  # (width, height); None = world.render
+    # one sharp render per frame serves every controller and oracle candidate of a window (world.render.share_render
+    # for evaluate): smeared per exposure from camera 1's frame-start pose instead of rendered at each mid-exposure
+    share_render: bool = True
     frontends: tuple[str, ...] = FRONTENDS
     sumlog_pairs: int = 30
     min_section_frames: int = 10
@@ -105,6 +108,7 @@ class EvaluateConfig:
             sensor_randomisation=r.number("sensor_randomisation", cls.sensor_randomisation, min=0.0, max=0.5),
             thumb_span_s=r.number("thumb_span_s", cls.thumb_span_s, min=0.0, max=1e6),
             render_size=None if size is None else (int(size[0]), int(size[1])),
+            share_render=r.boolean("share_render", cls.share_render),
             frontends=tuple(fronts),
             vo=vo_cfg,
             **ints,

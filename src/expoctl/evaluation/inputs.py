@@ -4,7 +4,7 @@ select_model) and handed to every run's worker process as is: no worker parses t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -57,10 +57,12 @@ class EvaluationInputs:
 
     @property
     def render(self) -> RenderConfig:
-        """The renderer of every run: world.render at evaluate.render_size when that is set."""
+        """The renderer of every run: world.render at evaluate.render_size when that is set, sharing one sharp render
+        per frame as evaluate.share_render says."""
+        render = replace(self.world.render, share_render=self.evaluate.share_render)
         if self.evaluate.render_size is None:
-            return self.world.render
-        return self.world.render.with_size(*self.evaluate.render_size)
+            return render
+        return render.with_size(*self.evaluate.render_size)
 
     def controller_params(self, name: str) -> dict:
         """controllers.<name> (a copy; {} when absent)."""

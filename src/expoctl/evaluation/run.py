@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -22,7 +22,7 @@ import numpy as np
 from expoctl.camera.response import DARK_DN, SATURATED_DN  # grey levels counted as black / clipped (8-bit)
 from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8
-from expoctl.sim.closed_loop import run_closed_loop
+from expoctl.sim.closed_loop import RigFrame, run_closed_loop
 from expoctl.vo.local_map import MapTracker, MapTrackerConfig
 
 #: front-end keys of metrics.json / frames.parquet: raw and SumLog variants of each front end
@@ -55,106 +55,156 @@ def image_stats(grey: np.ndarray) -> dict[str, float]:
     }
 
 
-def drive_window(
-    scene,
-    sensor,
-    controller: Controller,
-    window: WindowFrames,
-    *,
-    seed: int,
-    frontends: dict[str, Any],
-    sumlog: dict[str, SumLogParams],
-    initial: Settings,
-    warmup_frames: int,
-    K: np.ndarray,
-    vo_min_inliers: int = 20,
-    vo_n_features: int = 2000,
-    vo_ransac_threshold_px: float = 1.0,
-    vo_map: MapTrackerConfig | None = None,
-    thumb_width: int = 0,
-    thumb_every: int = 1,
-    thumb_span_s: float = 0.0,
-) -> tuple[list[dict], dict, dict[str, np.ndarray]]:
-    """Run the loop over `window.frames`; return (per-frame rows, run summary, thumbnails).
+class WindowRun:
+    """One controller's run over one window, fed frame by frame: `loop` is its closed loop (warm-up frames included,
+    so several runs can share the window's renders in lockstep, `drive_lockstep`), `record` takes each frame the
+    loop yields and `finish` returns (per-frame rows, run summary, thumbnails).
+
+    The loop runs over [start − warm-up, stop) without a separate warm-up phase: with one camera that is the same
+    sequence of captures and controller updates as `run_closed_loop(..., warmup_frames=...)` (capture t with the
+    settings for t, then update), and only frames from `window.frames.start` on are recorded."""
+
+    def __init__(
+        self,
+        controller: Controller,
+        window: WindowFrames,
+        *,
+        seed: int,
+        frontends: dict[str, Any],
+        sumlog: dict[str, SumLogParams],
+        initial: Settings,
+        warmup_frames: int,
+        K: np.ndarray,
+        vo_min_inliers: int = 20,
+        vo_n_features: int = 2000,
+        vo_ransac_threshold_px: float = 1.0,
+        vo_map: MapTrackerConfig | None = None,
+        thumb_width: int = 0,
+        thumb_every: int = 1,
+        thumb_span_s: float = 0.0,
+    ):
+        from expoctl.vo.frame_to_frame import FrameToFrameTracker
+
+        self.window, self.seed, self.frontends, self.sumlog = window, int(seed), frontends, sumlog
+        self.initial = initial
+        self.first_frame = max(0, window.frames.start - max(0, int(warmup_frames)))
+        self.thumb_width, self.thumb_every, self.thumb_span_s = thumb_width, thumb_every, thumb_span_s
+        self.timed = TimedController(controller)
+        self.rows: list[dict] = []
+        self._prev: dict[str, Any] = {}
+        self._thumbs: list[np.ndarray] = []
+        self._thumb_frames: list[int] = []
+        self.seconds = 0.0  # time spent in this run's loop and records (lockstep: shared renders go to the first run)
+        n = len(window.frames)
+        gt = None if window.gt_poses is None else np.asarray(window.gt_poses)[:n]
+        # the stricter, ORB-SLAM2-like test tracks the same frames against a local map (expoctl.vo.local_map)
+        self.map_cfg = vo_map or MapTrackerConfig(n_features=vo_n_features)
+        self.map_tracker = MapTracker(K, self.map_cfg, gt, seed=pair_seed(window.sequence, 0, "vo_map"))
+        self.tracker = FrameToFrameTracker(K, vo_min_inliers, gt, vo_n_features, vo_ransac_threshold_px,
+                                           seed=pair_seed(window.sequence, 0, "vo"))
+
+    def loop(self, scene, sensor) -> Iterator[RigFrame]:
+        """The closed loop over [first_frame, window stop), one `RigFrame` per frame, warm-up frames included."""
+        frames = range(self.first_frame, self.window.frames.stop)
+        return run_closed_loop(scene, [sensor], self.timed, self.initial, frames, self.seed)
+
+    def record(self, rig_frame: RigFrame) -> None:
+        """Statistics, features, matches and VO for one frame of the loop (warm-up frames are skipped)."""
+        from expoctl.features.pipeline import rgb_to_grey
+
+        window = self.window
+        k = rig_frame.frame_index - window.frames.start
+        if k < 0:
+            return
+        cam = rig_frame.camera(1)
+        img = cam.image
+        grey = rgb_to_grey(img)
+        row: dict[str, Any] = {
+            "sequence": window.sequence, "frame": k, "traj_frame": rig_frame.frame_index,
+            "timestamp_ns": rig_frame.timestamp_ns, "section": str(window.section[k]),
+            "portal_dt_s": float(window.portal_dt_s[k]), "portal_kind": str(window.portal_kind[k]),
+            "gain_db": float(cam.settings.gain_db), "exposure_us": float(cam.settings.exposure_us),
+            **image_stats(grey),
+        }
+        for name, fe in self.frontends.items():
+            for variant, g in ((name, grey), (f"{name}_sumlog", sumlog_uint8(img, self.sumlog[name]))):
+                ext = fe.extract(g)
+                row[f"nfeat_{variant}"] = int(fe.n_features(ext))
+                if variant in self._prev:
+                    n_m, n_i = fe.match(self._prev[variant], ext, pair_seed(window.sequence, k, variant))
+                    row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = float(n_m), float(n_i)
+                else:  # the window's first frame has no predecessor in the window
+                    row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = np.nan, np.nan
+                self._prev[variant] = ext
+        if self.thumb_width and k % self.thumb_every == 0 and abs(row["portal_dt_s"]) <= self.thumb_span_s:
+            h = max(1, int(round(img.shape[0] * self.thumb_width / img.shape[1])))
+            self._thumbs.append(cv2.resize(img, (self.thumb_width, h), interpolation=cv2.INTER_AREA))
+            self._thumb_frames.append(k)
+        self.rows.append(row)
+        self.map_tracker.step(img)
+        self.tracker.step(img)
+
+    def finish(self) -> tuple[list[dict], dict, dict[str, np.ndarray]]:
+        """(per-frame rows, run summary, thumbnails) once the loop has ended."""
+        rows, n, timed, map_cfg = self.rows, len(self.window.frames), self.timed, self.map_cfg
+        result = self.tracker.result()
+        # update_ms covers warm-up frames too; the recorded frames are the last n
+        ms = timed.update_ms[-n:] if timed.update_ms else []
+        map_result = self.map_tracker.result()
+        for k, row in enumerate(rows):
+            row["vo_n_inliers"] = float(result.n_inliers[k - 1]) if k >= 1 else np.nan
+            row["vo_map_n_inliers"] = float(map_result.n_inliers[k - 1]) if k >= 1 else np.nan
+            row["controller_ms"] = float(ms[k]) if k < len(ms) else np.nan
+        summary = {
+            "sequence": self.window.sequence,
+            "n_frames": n,
+            "vo_success": bool(result.success),
+            "vo_failed_at": -1 if result.failed_at_frame is None else int(result.failed_at_frame),
+            "vo_ate_m": float(result.ate_m) if result.ate_m is not None else np.nan,
+            "vo_rpe_trans_m": float(result.rpe["trans_m"]) if result.rpe else np.nan,
+            "vo_rpe_rot_deg": float(result.rpe["rot_deg"]) if result.rpe else np.nan,
+            "vo_min_inliers": int(result.n_inliers.min()) if len(result.n_inliers) else 0,
+            "vo_map_success": bool(map_result.success),
+            "vo_map_failed_at": -1 if map_result.failed_at_frame is None else int(map_result.failed_at_frame),
+            # bootstrap frames (the first map_cfg.bootstrap_frames) are not tracked, so not in the minimum
+            "vo_map_min_inliers": (int(map_result.n_inliers[map_cfg.bootstrap_frames - 1:].min())
+                                   if len(map_result.n_inliers) >= map_cfg.bootstrap_frames else 0),
+            "controller_ms_median": float(np.median(timed.update_ms)) if timed.update_ms else np.nan,
+            "seconds": self.seconds,
+            "seconds_per_frame": self.seconds / max(n, 1),
+        }
+        tb = {"frame": np.array(self._thumb_frames, dtype=np.int32),
+              "image": np.stack(self._thumbs) if self._thumbs else np.zeros((0, 1, 1, 3), np.uint8)}
+        return rows, summary, tb
+
+
+def drive_lockstep(scene, sensor, runs: Sequence[WindowRun]) -> list[tuple[list[dict], dict, dict[str, np.ndarray]]]:
+    """Drive several runs of one window frame by frame in step, so that a scene and sensor that remember the current
+    frames (`expoctl.sim.oracle.CachedScene`, a shared sharp render, reused noise) serve frame t to every run before
+    any run moves on. A run with a shorter warm-up joins at its own first frame. Each run's results are those of
+    driving it alone: every frame depends only on its own settings, pose and (seed, frame) noise."""
+    loops = [run.loop(scene, sensor) for run in runs]
+    first = min(run.first_frame for run in runs)
+    for t in range(first, runs[0].window.frames.stop):
+        for run, loop in zip(runs, loops):
+            if run.first_frame <= t:
+                t0 = time.perf_counter()
+                run.record(next(loop))
+                run.seconds += time.perf_counter() - t0
+    for run, loop in zip(runs, loops):  # each controller's update after the last frame, as a lone run makes it
+        t0 = time.perf_counter()
+        for _ in loop:
+            raise RuntimeError("closed loop yielded past the window's last frame")
+        run.seconds += time.perf_counter() - t0
+    return [run.finish() for run in runs]
+
+
+def drive_window(scene, sensor, controller: Controller, window: WindowFrames, **kwargs
+                 ) -> tuple[list[dict], dict, dict[str, np.ndarray]]:
+    """One controller alone over `window.frames` (keyword arguments: `WindowRun`'s); returns (per-frame rows, run
+    summary, thumbnails).
 
     `frontends` maps "orb"/"viso" to front-end objects; `sumlog` maps the same names to their tuned SumLog params.
     Thumbnails: every `thumb_every`-th frame within `thumb_span_s` of a portal crossing, `thumb_width` px wide
     ({"frame": (k,), "image": (k, h, w, 3)}; empty when thumb_width is 0)."""
-    from expoctl.features.pipeline import rgb_to_grey
-    from expoctl.vo.frame_to_frame import track_sequence
-
-    timed = TimedController(controller)
-    rows: list[dict] = []
-    prev: dict[str, Any] = {}
-    thumbs: list[np.ndarray] = []
-    thumb_frames: list[int] = []
-    t_start = time.perf_counter()
-
-    n = len(window.frames)
-    gt = None if window.gt_poses is None else np.asarray(window.gt_poses)[:n]
-    # the stricter, ORB-SLAM2-like test tracks the same frames against a local map (expoctl.vo.local_map)
-    map_cfg = vo_map or MapTrackerConfig(n_features=vo_n_features)
-    map_tracker = MapTracker(K, map_cfg, gt, seed=pair_seed(window.sequence, 0, "vo_map"))
-
-    def frames_and_stats():
-        loop = run_closed_loop(scene, [sensor], timed, initial, window.frames, seed, warmup_frames=warmup_frames)
-        for k, rig_frame in enumerate(loop):
-            cam = rig_frame.camera(1)
-            img = cam.image
-            grey = rgb_to_grey(img)
-            row: dict[str, Any] = {
-                "sequence": window.sequence, "frame": k, "traj_frame": rig_frame.frame_index,
-                "timestamp_ns": rig_frame.timestamp_ns, "section": str(window.section[k]),
-                "portal_dt_s": float(window.portal_dt_s[k]), "portal_kind": str(window.portal_kind[k]),
-                "gain_db": float(cam.settings.gain_db), "exposure_us": float(cam.settings.exposure_us),
-                **image_stats(grey),
-            }
-            for name, fe in frontends.items():
-                for variant, g in ((name, grey), (f"{name}_sumlog", sumlog_uint8(img, sumlog[name]))):
-                    ext = fe.extract(g)
-                    row[f"nfeat_{variant}"] = int(fe.n_features(ext))
-                    if variant in prev:
-                        n_m, n_i = fe.match(prev[variant], ext, pair_seed(window.sequence, k, variant))
-                        row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = float(n_m), float(n_i)
-                    else:  # the window's first frame has no predecessor in the window
-                        row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = np.nan, np.nan
-                    prev[variant] = ext
-            if thumb_width and k % thumb_every == 0 and abs(row["portal_dt_s"]) <= thumb_span_s:
-                h = max(1, int(round(img.shape[0] * thumb_width / img.shape[1])))
-                thumbs.append(cv2.resize(img, (thumb_width, h), interpolation=cv2.INTER_AREA))
-                thumb_frames.append(k)
-            rows.append(row)
-            map_tracker.step(img)
-            yield img
-
-    result = track_sequence(frames_and_stats(), K, min_inliers=vo_min_inliers, gt_poses=gt, n_features=vo_n_features,
-                            ransac_threshold_px=vo_ransac_threshold_px, seed=pair_seed(window.sequence, 0, "vo"))
-    seconds = time.perf_counter() - t_start
-    # update_ms covers warm-up frames too; the recorded frames are the last n
-    ms = timed.update_ms[-n:] if timed.update_ms else []
-    map_result = map_tracker.result()
-    for k, row in enumerate(rows):
-        row["vo_n_inliers"] = float(result.n_inliers[k - 1]) if k >= 1 else np.nan
-        row["vo_map_n_inliers"] = float(map_result.n_inliers[k - 1]) if k >= 1 else np.nan
-        row["controller_ms"] = float(ms[k]) if k < len(ms) else np.nan
-    summary = {
-        "sequence": window.sequence,
-        "n_frames": n,
-        "vo_success": bool(result.success),
-        "vo_failed_at": -1 if result.failed_at_frame is None else int(result.failed_at_frame),
-        "vo_ate_m": float(result.ate_m) if result.ate_m is not None else np.nan,
-        "vo_rpe_trans_m": float(result.rpe["trans_m"]) if result.rpe else np.nan,
-        "vo_rpe_rot_deg": float(result.rpe["rot_deg"]) if result.rpe else np.nan,
-        "vo_min_inliers": int(result.n_inliers.min()) if len(result.n_inliers) else 0,
-        "vo_map_success": bool(map_result.success),
-        "vo_map_failed_at": -1 if map_result.failed_at_frame is None else int(map_result.failed_at_frame),
-        # bootstrap frames (the first map_cfg.bootstrap_frames) are not tracked, so not in the minimum
-        "vo_map_min_inliers": (int(map_result.n_inliers[map_cfg.bootstrap_frames - 1:].min())
-                               if len(map_result.n_inliers) >= map_cfg.bootstrap_frames else 0),
-        "controller_ms_median": float(np.median(timed.update_ms)) if timed.update_ms else np.nan,
-        "seconds": seconds,
-        "seconds_per_frame": seconds / max(n, 1),
-    }
-    tb = {"frame": np.array(thumb_frames, dtype=np.int32),
-          "image": np.stack(thumbs) if thumbs else np.zeros((0, 1, 1, 3), np.uint8)}
-    return rows, summary, tb
+    return drive_lockstep(scene, sensor, [WindowRun(controller, window, **kwargs)])[0]

@@ -209,56 +209,75 @@ def tune_sumlog_params(inputs: EvaluationInputs, project_root: str | os.PathLike
 # ------------------------------------------------------------------------------------------------------------- runs
 
 
-def run_job(job: RunJob) -> tuple[list[dict], dict, dict]:
-    """Render and evaluate one run (runs in a worker process)."""
+def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
+    """Render and evaluate every run of one window (runs in a worker): (rows, summary, thumbnails) per job.
+
+    Render once, share everywhere: the runs step through the window in lockstep (`drive_lockstep`) over one scene
+    that keeps the latest frames' luminance per exposure (`CachedScene`: an exposure two runs or oracle candidates
+    share is rendered once), one renderer (with `evaluate.share_render`, one sharp render per frame serves every
+    exposure of every run) and one sensor that draws each frame's normal noise field once (`Sensor.remember_noise`).
+    Every run's images are those it would get alone: the caches hold pure functions of (frame, exposure)."""
     import expoctl.sim.oracle as oracle_mod
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import make_controller
-    from expoctl.evaluation.run import WindowFrames, drive_window
+    from expoctl.evaluation.run import WindowFrames, WindowRun, drive_lockstep
     from expoctl.features.pipeline import make_frontend
     from expoctl.sim.closed_loop import RouteScene, make_sensors, rig_metadata
     from expoctl.world import load_city_cached
     from expoctl.vo.frame_to_frame import intrinsics_matrix
 
     oracle_mod.register_oracle()
-    inputs, w = job.inputs, job.window
+    w = jobs[0].window
+    if any(job.window != w for job in jobs):
+        raise ValueError("run_window: every job must drive the same window")
+    inputs = jobs[0].inputs
     ecfg, fcfg, rig, render = inputs.evaluate, inputs.features, inputs.rig, inputs.render
     city = load_city_cached(w.city, w.city_dir)
     traj = _traversal_cached(city, w, rig.fps)
-    scene = RouteScene(city, traj, rig, render)
+    route = RouteScene(city, traj, rig, render)
+    scene = oracle_mod.CachedScene(route)
     sensors, _ = make_sensors(inputs.sensor, render, 1, ecfg.sensor_randomisation, w.seed)
-    warmup = ecfg.warmup_frames
-    params = inputs.controller_params(job.controller)
-    if job.controller == "oracle":
-        scene = oracle_mod.CachedScene(scene)
-        oparams = oracle_mod.OracleParams.from_dict(params)
-        warmup = min(warmup, oparams.warmup_frames)
-        controller = make_controller("oracle", {**params, "scene": scene, "sensor": sensors[0], "seed": w.seed,
-                                                "n_frames": w.traversal_frames, "first_frame": max(0, w.start - warmup)})
-    elif job.controller == "learned":
-        params["checkpoint"] = job.model_path
-        controller = make_controller("learned", params)
-    else:
-        controller = make_controller(job.controller, params)
+    sensor = sensors[0].remember_noise()
     section, dt, kind = window_annotations(traj, w.start, w.stop)
     window = WindowFrames(w.sequence, range(w.start, w.stop), section, dt, kind, traj.poses[w.start:w.stop])
     K = intrinsics_matrix(rig_metadata(rig, render)["intrinsics"])
-    frontends = {"orb": make_frontend("orb", fcfg.orb), "viso": make_frontend("viso", fcfg.viso)}
-    rows, summary, thumbs = drive_window(
-        scene, sensors[0], controller, window, seed=w.seed, frontends=frontends, sumlog=job.sumlog,
-        initial=Settings(ecfg.initial_gain_db, ecfg.initial_exposure_us), warmup_frames=warmup, K=K,
-        vo_min_inliers=ecfg.vo.min_inliers, vo_n_features=ecfg.vo.n_features,
-        vo_ransac_threshold_px=ecfg.vo.ransac_threshold_px, vo_map=ecfg.vo.map, thumb_width=ecfg.thumb_width,
-        thumb_every=ecfg.thumb_every, thumb_span_s=ecfg.thumb_span_s)
-    ident = {"run_id": job.run_id, "route_split": w.route_split, "city": w.city_name, "traversal": w.traversal,
-             "window": w.index, "window_label": w.label, "controller": job.controller}
-    for r in rows:
-        r.update(ident)
-    summary.update(ident, warmup_frames=warmup)
-    if job.controller == "oracle":
-        summary["oracle_ms_median"] = float(np.median(controller.timings_ms)) if controller.timings_ms else np.nan
-        summary["oracle_renders"] = int(scene.n_renders)
-    return rows, summary, thumbs
+    runs, warmups = [], []
+    for job in jobs:
+        params = inputs.controller_params(job.controller)
+        warmup = ecfg.warmup_frames
+        if job.controller == "oracle":
+            warmup = min(warmup, oracle_mod.OracleParams.from_dict(params).warmup_frames)
+            controller = make_controller("oracle", {**params, "scene": scene, "sensor": sensor, "seed": w.seed,
+                                                    "n_frames": w.traversal_frames,
+                                                    "first_frame": max(0, w.start - warmup)})
+        elif job.controller == "learned":
+            controller = make_controller("learned", {**params, "checkpoint": job.model_path})
+        else:
+            controller = make_controller(job.controller, params)
+        # front ends per run: their matchers keep state between frames
+        frontends = {"orb": make_frontend("orb", fcfg.orb), "viso": make_frontend("viso", fcfg.viso)}
+        runs.append(WindowRun(
+            controller, window, seed=w.seed, frontends=frontends, sumlog=job.sumlog,
+            initial=Settings(ecfg.initial_gain_db, ecfg.initial_exposure_us), warmup_frames=warmup, K=K,
+            vo_min_inliers=ecfg.vo.min_inliers, vo_n_features=ecfg.vo.n_features,
+            vo_ransac_threshold_px=ecfg.vo.ransac_threshold_px, vo_map=ecfg.vo.map, thumb_width=ecfg.thumb_width,
+            thumb_every=ecfg.thumb_every, thumb_span_s=ecfg.thumb_span_s))
+        warmups.append(warmup)
+    results = drive_lockstep(scene, sensor, runs)
+    shared = {"window_renders": int(scene.n_renders), "window_sharp_renders": int(route.renderer.n_sharp_renders),
+              "window_noise_draws": int(sensor.noise_draws)}
+    out = []
+    for job, run, warmup, (rows, summary, thumbs) in zip(jobs, runs, warmups, results):
+        ident = {"run_id": job.run_id, "route_split": w.route_split, "city": w.city_name, "traversal": w.traversal,
+                 "window": w.index, "window_label": w.label, "controller": job.controller}
+        for r in rows:
+            r.update(ident)
+        summary.update(ident, warmup_frames=warmup, **shared)
+        if job.controller == "oracle":
+            timings = run.timed.inner.timings_ms
+            summary["oracle_ms_median"] = float(np.median(timings)) if timings else np.nan
+        out.append((rows, summary, thumbs))
+    return out
 
 
 _TRAJ_CACHE: dict[tuple, Any] = {}
@@ -341,12 +360,27 @@ def write_outputs(result: EvaluationResult, reports_dir: str | os.PathLike) -> d
 
 def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool,
              parallel: ParallelConfig | None = None) -> Iterator[tuple[RunJob, tuple]]:
-    """(job, `run_job(job)`) for every job, in the order of `jobs`: where `parallel` says (`expoctl.parallel`; default
-    n_jobs spawned worker processes, one thread each, or this process when n_jobs <= 1)."""
+    """(job, (rows, summary, thumbnails)) for every job, in the order of `jobs`. The jobs of one window go to one
+    worker together (`run_window`: rendered once, driven in lockstep); windows fan out where `parallel` says
+    (`expoctl.parallel`; default n_jobs spawned worker processes, one thread each, or this process when n_jobs <= 1).
+    """
     from tqdm import tqdm
 
+    groups: dict[str, list[int]] = {}
+    for i, job in enumerate(jobs):
+        groups.setdefault(job.window.sequence, []).append(i)
+    # the slowest window (most runs; an oracle among them) first, so the pool does not end on one long job
+    order = sorted(groups.values(), key=lambda ix: (-len(ix), not any(jobs[i].controller == "oracle" for i in ix)))
+    done: dict[int, tuple] = {}
+    following = 0
     with tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress) as bar:
-        yield from run_ordered(run_job, jobs, n_jobs, parallel, progress=lambda _j, _r: bar.update())
+        windows = [tuple(jobs[i] for i in ix) for ix in order]
+        for (ix, (_group, results)) in zip(order, run_ordered(run_window, windows, n_jobs, parallel,
+                                                                 progress=lambda g, _r: bar.update(len(g)))):
+            done.update(zip(ix, results))
+            while following in done:  # the caller aggregates in job order: hand on every job that is complete
+                yield jobs[following], done.pop(following)
+                following += 1
 
 
 def metrics_summary(metrics: dict[str, Any]) -> dict[str, float]:

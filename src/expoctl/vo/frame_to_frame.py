@@ -100,35 +100,54 @@ def track_sequence(
 ) -> TrackingResult:
     """Track a monocular sequence (iterable of uint8 RGB frames, consumed once) with intrinsics K (3×3).
     `gt_poses`: optional sequence of 4×4 T_wc, one per frame, for scale and trajectory errors."""
-    K = np.asarray(K, dtype=np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise InputError(f"vo: K must be a finite 3×3 intrinsics matrix with positive focal lengths, got {K.shape}")
-    if int(min_inliers) != min_inliers or min_inliers < 5:
-        raise InputError(f"vo: min_inliers must be an integer >= 5 (the five-point minimum), got {min_inliers!r}")
-    gt = None if gt_poses is None else np.asarray(gt_poses, dtype=np.float64)
-    if gt is not None and (gt.ndim != 3 or gt.shape[1:] != (4, 4)):
-        raise InputError(f"vo: gt_poses must be a sequence of 4×4 matrices, got shape {gt.shape}")
+    tracker = FrameToFrameTracker(K, min_inliers, gt_poses, n_features, ransac_threshold_px, ransac_prob, seed)
+    for image in images:
+        tracker.step(image)
+    return tracker.result()
 
-    orb = cv2.ORB_create(nfeatures=int(n_features))
-    poses = [gt[0].copy() if gt is not None else np.eye(4)]
-    n_inl: list[int] = []
-    n_match: list[int] = []
-    failed_at = None
-    prev = None
-    shape = None
-    for i, image in enumerate(images):
+
+class FrameToFrameTracker:
+    """`track_sequence` fed one frame at a time (`step`), for callers that produce frames in lockstep with other
+    work (evaluate drives every controller of a window frame by frame); `result()` once the last frame is in."""
+
+    def __init__(self, K: np.ndarray, min_inliers: int = 20, gt_poses=None, n_features: int = 2000,
+                 ransac_threshold_px: float = 1.0, ransac_prob: float = 0.999, seed: int = 0):
+        K = np.asarray(K, dtype=np.float64)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise InputError(f"vo: K must be a finite 3×3 intrinsics matrix with positive focal lengths, got {K.shape}")
+        if int(min_inliers) != min_inliers or min_inliers < 5:
+            raise InputError(f"vo: min_inliers must be an integer >= 5 (the five-point minimum), got {min_inliers!r}")
+        gt = None if gt_poses is None else np.asarray(gt_poses, dtype=np.float64)
+        if gt is not None and (gt.ndim != 3 or gt.shape[1:] != (4, 4)):
+            raise InputError(f"vo: gt_poses must be a sequence of 4×4 matrices, got shape {gt.shape}")
+        self.K, self.min_inliers, self.gt = K, min_inliers, gt
+        self.ransac_threshold_px, self.ransac_prob, self.seed = ransac_threshold_px, ransac_prob, seed
+        self._orb = cv2.ORB_create(nfeatures=int(n_features))
+        self._poses = [gt[0].copy() if gt is not None else np.eye(4)]
+        self._n_inl: list[int] = []
+        self._n_match: list[int] = []
+        self._failed_at: int | None = None
+        self._prev = None
+        self._shape = None
+        self._i = 0
+
+    def step(self, image: np.ndarray) -> None:
+        """Add the next frame: its pair with the previous frame is matched and the pose chained."""
+        i, gt = self._i, self.gt
+        self._i += 1
         grey = grey_frame(image, i)
-        if shape is None:
-            shape = grey.shape
-        elif grey.shape != shape:
-            raise InputError(f"vo: frame {i} has size {grey.shape}, frame 0 has {shape}")
-        kp, desc = orb.detectAndCompute(grey, None)
-        if prev is not None:
-            nm, ni, R, t = relative_pose(*prev, kp, desc, K, ransac_threshold_px, ransac_prob, seed + i)
-            n_match.append(nm)
-            n_inl.append(ni)
-            if ni < min_inliers and failed_at is None:
-                failed_at = i
+        if self._shape is None:
+            self._shape = grey.shape
+        elif grey.shape != self._shape:
+            raise InputError(f"vo: frame {i} has size {grey.shape}, frame 0 has {self._shape}")
+        kp, desc = self._orb.detectAndCompute(grey, None)
+        if self._prev is not None:
+            nm, ni, R, t = relative_pose(*self._prev, kp, desc, self.K, self.ransac_threshold_px, self.ransac_prob,
+                                         self.seed + i)
+            self._n_match.append(nm)
+            self._n_inl.append(ni)
+            if ni < self.min_inliers and self._failed_at is None:
+                self._failed_at = i
             T_cur_prev = np.eye(4)  # lost pair: hold the pose (constant-position assumption)
             if R is not None:
                 step = 1.0
@@ -137,25 +156,28 @@ def track_sequence(
                         raise InputError(f"vo: gt_poses has {len(gt)} poses but the sequence has more frames")
                     step = float(np.linalg.norm(gt[i][:3, 3] - gt[i - 1][:3, 3]))
                 T_cur_prev[:3, :3], T_cur_prev[:3, 3] = R, t * step
-            poses.append(poses[-1] @ np.linalg.inv(T_cur_prev))
-        prev = (kp, desc)
-    traj = np.array(poses)
-    if gt is not None and len(gt) != len(traj):
-        raise InputError(f"vo: gt_poses has {len(gt)} poses for {len(traj)} frames")
-    ate, rpe = None, None
-    n_tracked = len(traj) if failed_at is None else failed_at
-    if gt is not None and n_tracked >= 2:
-        ate = absolute_trajectory_error(traj[:n_tracked], gt[:n_tracked])
-        rpe = relative_pose_error(traj[:n_tracked], gt[:n_tracked])
-    return TrackingResult(
-        success=failed_at is None,
-        failed_at_frame=failed_at,
-        n_inliers=np.array(n_inl, dtype=int),
-        trajectory=traj,
-        ate_m=ate,
-        rpe=rpe,
-        n_matches=np.array(n_match, dtype=int),
-    )
+            self._poses.append(self._poses[-1] @ np.linalg.inv(T_cur_prev))
+        self._prev = (kp, desc)
+
+    def result(self) -> TrackingResult:
+        gt, failed_at = self.gt, self._failed_at
+        traj = np.array(self._poses)
+        if gt is not None and len(gt) != len(traj):
+            raise InputError(f"vo: gt_poses has {len(gt)} poses for {len(traj)} frames")
+        ate, rpe = None, None
+        n_tracked = len(traj) if failed_at is None else failed_at
+        if gt is not None and n_tracked >= 2:
+            ate = absolute_trajectory_error(traj[:n_tracked], gt[:n_tracked])
+            rpe = relative_pose_error(traj[:n_tracked], gt[:n_tracked])
+        return TrackingResult(
+            success=failed_at is None,
+            failed_at_frame=failed_at,
+            n_inliers=np.array(self._n_inl, dtype=int),
+            trajectory=traj,
+            ate_m=ate,
+            rpe=rpe,
+            n_matches=np.array(self._n_match, dtype=int),
+        )
 
 
 def umeyama_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -53,6 +53,7 @@ class Renderer:
         self.city, self.width, self.height, self.hfov_deg = city, int(width), int(height), float(hfov_deg)
         self.glare_fraction, self.blur, self.max_subframes = float(glare_fraction), blur, max_subframes
         self.share_render = bool(share_render)
+        self.n_sharp_renders = 0  # sharp renders of the fast blur path (the cost render sharing saves)
         self.seg = np.ascontiguousarray(city.segments)
         self.texels, self.offs, self.sizes, self.scales = city.texture_atlas()
         if np.any(self.sizes & (self.sizes - 1)):  # raycast._bilinear wraps texel indices with a bit mask
@@ -263,15 +264,19 @@ class Renderer:
                 acc += self.render_full(pose, glare=False)["luminance"]
             return self.apply_glare((acc / n).astype(np.float32))
         # Render once at mid-exposure and smear each pixel along its flow to the exposure's start and end poses.
-        # With share_render (optional) one sharp render per frame serves both cameras and every exposure: the flow
-        # from the cached render's pose to this camera's start/end poses also carries the 3.92 cm stereo parallax.
+        # With share_render (optional) one sharp render per frame serves both cameras and every exposure: it is
+        # taken at camera 1's frame-start pose whoever asks first (so a frame never depends on the order of the
+        # requests), and the flow from there to this camera's start/end poses also carries the 3.92 cm stereo
+        # parallax. The start pose keeps the shortest exposures (the sharp images) unresampled.
         key = (trajectory.uid, frame_index) if self.share_render else (
             trajectory.uid, frame_index, float(camera_offset_m), float(exposure_us))
         if key not in self._cache:
             if len(self._cache) > 8:
                 self._cache.clear()
-            ref = self._offset_pose(trajectory.pose_at(t0 + 0.5 * dur), camera_offset_m)
+            ref = (trajectory.pose_at(t0) if self.share_render
+                   else self._offset_pose(trajectory.pose_at(t0 + 0.5 * dur), camera_offset_m))
             self._cache[key] = dict(self.render_full(ref, glare=False), pose=ref)
+            self.n_sharp_renders += 1
         sharp = self._cache[key]
         pa = self._offset_pose(trajectory.pose_at(t0), camera_offset_m)
         pb = self._offset_pose(trajectory.pose_at(t0 + dur), camera_offset_m)
