@@ -44,7 +44,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from expoctl.evaluation.inputs import EvaluationInputs
-    from expoctl.evaluation.runner import RunJob, plan_windows, run_job
+    from expoctl.evaluation.runner import RunJob, plan_windows, run_window
     from expoctl.features.sumlog import SumLogParams
 
     rows = []
@@ -56,10 +56,10 @@ def main() -> None:
         windows = plan_windows(inputs, ROOT)
         win = dataclasses.replace(windows[0], stop=windows[0].start + args.frames)
         sumlog = {"orb": SumLogParams(beta=8.0), "viso": SumLogParams(beta=8.0)}
-        run_job(RunJob(dataclasses.replace(win, stop=win.start + 3), "fixed", inputs, sumlog))  # warm caches / JIT
+        run_window((RunJob(dataclasses.replace(win, stop=win.start + 3), "fixed", inputs, sumlog),))  # warm caches / JIT
         for ctrl in args.controllers:
             t0, c0 = time.perf_counter(), cpu_s()
-            _, summary, _ = run_job(RunJob(win, ctrl, inputs, sumlog, str(ROOT / "models/controller.pt")))
+            _, summary, _ = run_window((RunJob(win, ctrl, inputs, sumlog, str(ROOT / "models/controller.pt")),))[0]
             wall, cpu = time.perf_counter() - t0, cpu_s() - c0
             n = summary["n_frames"] + summary["warmup_frames"]
             rows.append({"size": size, "controller": ctrl, "frames_incl_warmup": n, "wall_s_per_frame": wall / n,
