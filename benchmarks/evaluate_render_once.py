@@ -13,6 +13,13 @@ render counters (the registered prediction: bit-identical); with share_render tr
 the median NFM deltas against the old code next to the median's bootstrap standard error over frames.
 
     .venv/bin/python benchmarks/evaluate_render_once.py --old-ref f21af75 --reps 2
+
+--paired-seeds K asks a second question with this checkout only: is a NFM delta of share_render true against
+false a bias, or a closed loop amplifying a small change? For K top-level seeds (each its own traversal, sun, sky
+and sensor noise) it runs both share_render values on the same window and writes the paired deltas per
+(controller, front end), their mean and its standard error over seeds (--paired-out):
+
+    .venv/bin/python benchmarks/evaluate_render_once.py --paired-seeds 6 --controllers agae shin shim mean_intensity learned
 """
 
 from __future__ import annotations
@@ -114,6 +121,64 @@ def compare(old: Path, new: Path) -> dict:
     return out
 
 
+def paired_seeds(args) -> None:
+    """share_render false vs true on --paired-seeds seeds (this checkout); paired NFM deltas per controller."""
+    import numpy as np
+    import pandas as pd
+
+    sys.path[:0] = [str(ROOT)]
+    from bench_meta import run_metadata
+
+    rows, times = [], []
+    with tempfile.TemporaryDirectory(prefix="render-once-paired-") as tmp:
+        tmp = Path(tmp)
+        project = tmp / "project"
+        cfg = bench_config(project, args)
+        cfg["evaluate"]["controllers"] = list(args.controllers)
+        for k in range(args.paired_seeds):
+            seed = int(cfg["seed"]) + 1 + k
+            medians = {}
+            for share in (False, True):
+                c = json.loads(json.dumps(cfg))
+                c["seed"], c["evaluate"]["share_render"] = seed, share
+                config = tmp / f"config-{seed}-{share}.json"
+                config.write_text(json.dumps(c))
+                out = tmp / f"out-{seed}-{share}"
+                res = run_variant(ROOT, project, config, out)
+                times.append({"seed": seed, "share_render": share, **res})
+                f = pd.read_parquet(out / "eval/frames.parquet")
+                for ctrl in args.controllers:
+                    for fe in ("orb", "viso"):
+                        x = f.loc[f.controller == ctrl, f"nfm_{fe}"].dropna()
+                        medians[(share, ctrl, fe)] = float(np.median(x)) if len(x) else float("nan")
+            for ctrl in args.controllers:
+                for fe in ("orb", "viso"):
+                    a, b = medians[(False, ctrl, fe)], medians[(True, ctrl, fe)]
+                    rows.append({"seed": seed, "controller": ctrl, "frontend": fe, "median_nfm_false": a,
+                                 "median_nfm_true": b, "delta": b - a})
+            print(f"seed {seed}: " + ", ".join(f"{r['controller']}/{r['frontend']} {r['delta']:+.0f}"
+                                               for r in rows if r["seed"] == seed), flush=True)
+    d = pd.DataFrame(rows)
+    summary = []
+    print(f"\n| controller | front end | mean Δ median NFM over {args.paired_seeds} seeds | SE | mean |Δ| | "
+          "range of Δ |")
+    print("|---|---|---|---|---|---|")
+    for (ctrl, fe), g in d.groupby(["controller", "frontend"], sort=False):
+        x = g.delta.to_numpy()
+        se = float(np.std(x, ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
+        summary.append({"controller": ctrl, "frontend": fe, "mean_delta": float(np.mean(x)), "se": se,
+                        "mean_abs_delta": float(np.mean(np.abs(x))), "min": float(x.min()), "max": float(x.max())})
+        print(f"| {ctrl} | {fe} | {np.mean(x):+.1f} | {se:.1f} | {np.mean(np.abs(x)):.1f} | "
+              f"{x.min():+.0f} … {x.max():+.0f} |")
+    wall = {s: statistics.median(t["wall_s"] for t in times if t["share_render"] == s) for s in (False, True)}
+    print(f"\nmedian wall per run: share_render false {wall[False]:.1f} s, true {wall[True]:.1f} s "
+          f"({wall[False] / wall[True]:.2f}x)")
+    out = {"paired": rows, "summary": summary, "times": times, "args": vars(args), **run_metadata()}
+    Path(args.paired_out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.paired_out).write_text(json.dumps(out, indent=2) + "\n")
+    print("→", args.paired_out)
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         child(*(Path(p) for p in sys.argv[2:6]))
@@ -125,7 +190,14 @@ def main() -> None:
     ap.add_argument("--after-s", type=float, default=2.0)
     ap.add_argument("--warmup", type=int, default=30)
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/evaluate_render_once.json"))
+    ap.add_argument("--paired-seeds", type=int, default=0,
+                    help="instead: share_render false vs true on this many seeds (this checkout only)")
+    ap.add_argument("--controllers", nargs="+", default=["agae", "shin", "shim", "mean_intensity", "learned"])
+    ap.add_argument("--paired-out", default=str(ROOT / "benchmarks/results/evaluate_render_once_paired.json"))
     args = ap.parse_args()
+    if args.paired_seeds:
+        paired_seeds(args)
+        return
     sys.path[:0] = [str(ROOT)]
     from bench_meta import run_metadata
 

@@ -43,25 +43,39 @@ def test_apply_trial_sets_keys_and_concrete_widths():
         apply_trial(cfg, {"train.nope": 1})
 
 
-@pytest.mark.slow
-def test_two_trial_sweep_at_fixture_scale(tmp_path):
-    data = make_synthetic_dataset(tmp_path / "data", n_sequences=4, n_frames=8, hw=(32, 32), seed=0)
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+def run_sweep(tmp: Path, launcher_args: list[str]) -> tuple[dict, mlflow.tracking.MlflowClient, list]:
+    """A real 2-trial multirun at fixture scale into `tmp` (own data, sweep dir and SQLite store): (best.yaml, client,
+    the trial child runs sorted by trial)."""
+    data = make_synthetic_dataset(tmp / "data", n_sequences=4, n_frames=8, hw=(32, 32), seed=0)
+    uri = f"sqlite:///{tmp}/mlflow.db"
     cmd = [sys.executable, "-m", "stages.sweep", "scale=fixture", "sweep.trial=range(2)",
-           f"hydra.sweep.dir={tmp_path}/sweep", f"paths.samples={data['samples']}", f"paths.frames={data['frames']}",
-           f"paths.images_dir={data['images_dir']}", f"paths.model={tmp_path}/models/controller.pt",
-           f"paths.reports_dir={tmp_path}/reports", "model.input_size=32", "model.conv_kernels=[3,3,3]",
-           "model.pool=2", "train.epochs=2", "train.num_threads=1"]
+           f"hydra.sweep.dir={tmp}/sweep", f"paths.samples={data['samples']}", f"paths.frames={data['frames']}",
+           f"paths.images_dir={data['images_dir']}", f"paths.model={tmp}/models/controller.pt",
+           f"paths.reports_dir={tmp}/reports", "model.input_size=32", "model.conv_kernels=[3,3,3]",
+           "model.pool=2", "train.epochs=2", "train.num_threads=1", *launcher_args]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri, "PYTHONPATH": str(ROOT)}
-    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
-    best = yaml.safe_load((tmp_path / "sweep" / "best.yaml").read_text())
-    assert best["n_trials"] == best["n_trials_finished"] == 2
-
+    best = yaml.safe_load((tmp / "sweep" / "best.yaml").read_text())
     client = mlflow.tracking.MlflowClient(uri)
     parent = client.get_run(best["parent_run_id"])
     children = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent.info.run_id}'")
-    assert sorted(r.data.params["trial"] for r in children) == ["0", "1"]
+    return best, client, sorted(children, key=lambda r: int(r.data.params["trial"]))
+
+
+@pytest.fixture(scope="module")
+def basic_sweep(tmp_path_factory):
+    """The sweep on Hydra's default (basic, in-process) launcher, shared by the tests below."""
+    tmp = tmp_path_factory.mktemp("basic-sweep")
+    return tmp, *run_sweep(tmp, [])
+
+
+@pytest.mark.slow
+def test_two_trial_sweep_at_fixture_scale(basic_sweep):
+    tmp_path, best, client, children = basic_sweep
+    assert best["n_trials"] == best["n_trials_finished"] == 2
+    parent = client.get_run(best["parent_run_id"])
+    assert [r.data.params["trial"] for r in children] == ["0", "1"]
     assert {r.data.tags["host_cpu"] for r in children} == {host_cpu()}  # a trial's throughput names its machine
     objectives = {r.info.run_id: r.data.metrics["objective"] for r in children}
     assert best["best_run_id"] == min(objectives, key=objectives.get)
@@ -70,4 +84,27 @@ def test_two_trial_sweep_at_fixture_scale(tmp_path):
     assert any(k.startswith("best.train.lr") for k in parent.data.params)
     assert len(client.get_metric_history(children[0].info.run_id, "val_loss")) == 2  # per-epoch series
     # trials write no pipeline outputs
+    assert not (tmp_path / "models").exists() and not (tmp_path / "reports").exists()
+
+
+@pytest.mark.slow
+def test_sweep_through_submitit_matches_the_basic_launcher(basic_sweep, tmp_path):
+    """hydra/launcher=submitit_local: each trial is pickled by submitit and runs in its own process, as a SLURM job
+    would (submitit_slurm differs only in how the job is queued). Trial k draws the same values and, trained on one
+    CPU thread, reaches bit-identical metrics; the parent run closes with the same best trial."""
+    _, basic_best, _, basic_children = basic_sweep
+    best, client, children = run_sweep(tmp_path, ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
+                                                  "hydra.launcher.cpus_per_task=1"])
+    assert best["n_trials"] == best["n_trials_finished"] == 2
+    assert client.get_run(best["parent_run_id"]).info.status == "FINISHED"
+    # submitit ran them: one folder per job id (local: the job's pid), each with the job's pickled result
+    job_dirs = sorted(d for d in (tmp_path / "sweep" / ".submitit").iterdir() if d.name.isdigit())
+    assert len(job_dirs) == 2 and all(list(d.glob("*_result.pkl")) for d in job_dirs)
+    def results(run):  # every metric but the clocks (throughput, epoch time)
+        return {k: v for k, v in run.data.metrics.items() if not k.endswith(("_per_s", "_seconds"))}
+
+    for a, b in zip(basic_children, children, strict=True):
+        assert a.data.params == b.data.params
+        assert results(a) == results(b) and "objective" in results(a)
+    assert best["best_trial"] == basic_best["best_trial"] and best["overrides"] == basic_best["overrides"]
     assert not (tmp_path / "models").exists() and not (tmp_path / "reports").exists()
