@@ -61,7 +61,7 @@ def main() -> None:
         rows = []
         for f in frames:
             for e in args.exposures_us:
-                logs = {k: np.log(np.maximum(r.render_exposure(traj, int(f), e).mean(axis=2), 1e-4))
+                logs = {k: np.log(np.maximum(r.render_exposure(traj, int(f), e).mean(axis=2, dtype=np.float64), 1e-4))
                         for k, r in renderers.items()}
                 ref = logs.pop("reference")
                 lap_ref = float(np.mean(cv2.Laplacian(ref, cv2.CV_64F) ** 2))

@@ -51,9 +51,11 @@ class EvaluateConfig:
     initial_exposure_us: float = 5000.0
     sensor_randomisation: float = 0.15
     render_size: tuple[int, int] | None = None  # (width, height); None = world.render
-    # one sharp render per frame serves every controller and oracle candidate of a window (world.render.share_render
-    # for evaluate): smeared per exposure from camera 1's frame-start pose instead of rendered at each mid-exposure
-    share_render: bool = True
+    # true: one sharp render per frame serves every controller and oracle candidate of a window (world.render.share_render
+    # for evaluate), smeared per exposure from camera 1's frame-start pose; false (default): each exposure rendered at
+    # its mid-point, as collect renders the training data. true is ~2x faster but measurably further from the
+    # sub-frame reference blur (docs/scale_out.md, Render once)
+    share_render: bool = False
     frontends: tuple[str, ...] = FRONTENDS
     sumlog_pairs: int = 30
     min_section_frames: int = 10
