@@ -13,6 +13,7 @@ import yaml
 
 from expoctl.errors import ConfigError
 from expoctl.host import host_cpu
+from tests.support.slurm_cluster import slurm_cluster
 from tests.support.synthetic_data import make_synthetic_dataset
 from stages.sweep import apply_trial, sample_trial
 
@@ -43,9 +44,10 @@ def test_apply_trial_sets_keys_and_concrete_widths():
         apply_trial(cfg, {"train.nope": 1})
 
 
-def run_sweep(tmp: Path, launcher_args: list[str]) -> tuple[dict, mlflow.tracking.MlflowClient, list]:
-    """A real 2-trial multirun at fixture scale into `tmp` (own data, sweep dir and SQLite store): (best.yaml, client,
-    the trial child runs sorted by trial)."""
+def run_sweep(tmp: Path, launcher_args: list[str], env: dict | None = None
+              ) -> tuple[dict, mlflow.tracking.MlflowClient, list]:
+    """A real 2-trial multirun at fixture scale into `tmp` (own data, sweep dir and SQLite store), `env` added to the
+    environment: (best.yaml, client, the trial child runs sorted by trial)."""
     data = make_synthetic_dataset(tmp / "data", n_sequences=4, n_frames=8, hw=(32, 32), seed=0)
     uri = f"sqlite:///{tmp}/mlflow.db"
     cmd = [sys.executable, "-m", "stages.sweep", "scale=fixture", "sweep.trial=range(2)",
@@ -53,7 +55,7 @@ def run_sweep(tmp: Path, launcher_args: list[str]) -> tuple[dict, mlflow.trackin
            f"paths.images_dir={data['images_dir']}", f"paths.model={tmp}/models/controller.pt",
            f"paths.reports_dir={tmp}/reports", "model.input_size=32", "model.conv_kernels=[3,3,3]",
            "model.pool=2", "train.epochs=2", "train.num_threads=1", *launcher_args]
-    env = {**os.environ, "MLFLOW_TRACKING_URI": uri, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "MLFLOW_TRACKING_URI": uri, "PYTHONPATH": str(ROOT), **(env or {})}
     p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
     best = yaml.safe_load((tmp / "sweep" / "best.yaml").read_text())
@@ -87,20 +89,14 @@ def test_two_trial_sweep_at_fixture_scale(basic_sweep):
     assert not (tmp_path / "models").exists() and not (tmp_path / "reports").exists()
 
 
-@pytest.mark.slow
-def test_sweep_through_submitit_matches_the_basic_launcher(basic_sweep, tmp_path):
-    """hydra/launcher=submitit_local: each trial is pickled by submitit and runs in its own process, as a SLURM job
-    would (submitit_slurm differs only in how the job is queued). Trial k draws the same values and, trained on one
-    CPU thread, reaches bit-identical metrics; the parent run closes with the same best trial."""
+def assert_same_trials(basic_sweep, tmp_path, best, client, children) -> None:
+    """Trial k drew the same values and, trained on one CPU thread, reached bit-identical losses and objective as on
+    the basic launcher; only the clocks (samples/s, epoch seconds) differ. The parent run closed with the same best."""
     _, basic_best, _, basic_children = basic_sweep
-    best, client, children = run_sweep(tmp_path, ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
-                                                  "hydra.launcher.cpus_per_task=1"])
     assert best["n_trials"] == best["n_trials_finished"] == 2
     assert client.get_run(best["parent_run_id"]).info.status == "FINISHED"
-    # submitit ran them: one folder per job id (local: the job's pid), each with the job's pickled result
-    job_dirs = sorted(d for d in (tmp_path / "sweep" / ".submitit").iterdir() if d.name.isdigit())
-    assert len(job_dirs) == 2 and all(list(d.glob("*_result.pkl")) for d in job_dirs)
-    def results(run):  # every metric but the clocks (throughput, epoch time)
+
+    def results(run):
         return {k: v for k, v in run.data.metrics.items() if not k.endswith(("_per_s", "_seconds"))}
 
     for a, b in zip(basic_children, children, strict=True):
@@ -108,3 +104,35 @@ def test_sweep_through_submitit_matches_the_basic_launcher(basic_sweep, tmp_path
         assert results(a) == results(b) and "objective" in results(a)
     assert best["best_trial"] == basic_best["best_trial"] and best["overrides"] == basic_best["overrides"]
     assert not (tmp_path / "models").exists() and not (tmp_path / "reports").exists()
+
+
+def submitit_jobs(tmp_path: Path) -> list[Path]:
+    """submitit's folders of the jobs that returned a result (named by job id: a pid locally, `<array>_<task>` on
+    SLURM, where the trials go as one job array)."""
+    return sorted(d for d in (tmp_path / "sweep" / ".submitit").iterdir() if any(d.glob(f"{d.name}_*_result.pkl")))
+
+
+@pytest.mark.slow
+def test_sweep_through_submitit_matches_the_basic_launcher(basic_sweep, tmp_path):
+    """hydra/launcher=submitit_local: each trial is pickled by submitit and runs in its own process."""
+    run = run_sweep(tmp_path, ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
+                               "hydra.launcher.cpus_per_task=1"])
+    assert len(submitit_jobs(tmp_path)) == 2  # local job ids are the jobs' pids
+    assert_same_trials(basic_sweep, tmp_path, *run)
+
+
+@pytest.mark.slow
+def test_sweep_on_a_real_slurm_cluster_matches_the_basic_launcher(basic_sweep, tmp_path):
+    """hydra/launcher=submitit_slurm on a private single-node SLURM 22.05 cluster (slurmctld + slurmd on 127.0.0.1,
+    tests/support/slurm_cluster.py): each trial an sbatch job, as on a real cluster."""
+    with slurm_cluster() as env:
+        run = run_sweep(tmp_path, ["hydra/launcher=submitit_slurm", "hydra.launcher.partition=debug",
+                                   "hydra.launcher.timeout_min=10", "hydra.launcher.cpus_per_task=1"], env)
+        jobs = submitit_jobs(tmp_path)
+        assert len(jobs) == 2
+        # SLURM ran them: its controller still knows both array tasks, completed
+        for job in jobs:
+            p = subprocess.run(["scontrol", "-o", "show", "job", job.name], capture_output=True, text=True,
+                               env={**os.environ, **env})
+            assert "JobState=COMPLETED" in p.stdout, p.stdout + p.stderr
+    assert_same_trials(basic_sweep, tmp_path, *run)
