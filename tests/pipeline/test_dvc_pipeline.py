@@ -155,7 +155,7 @@ def _tree(d):
 
 def _interrupt_when(p, args: list[str], marker: bytes, timeout_s: float = 300.0):
     """Run `dvc <args>` in its own process group, send SIGINT to the group (a Ctrl-C) as soon as `marker` shows in
-    its output, and return (exit code, output)."""
+    its output, again every 3 s while it runs on, and return (exit code, output)."""
     import os
     import signal
     import subprocess
@@ -172,7 +172,15 @@ def _interrupt_when(p, args: list[str], marker: bytes, timeout_s: float = 300.0)
     while marker not in b"".join(chunks):
         assert proc.poll() is None and time.monotonic() < deadline, b"".join(chunks).decode()[-3000:]
         time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGINT)
+    # a Ctrl-C that lands while numba's compiler is inside a ctypes callback is swallowed there ("Exception ignored
+    # on calling ctypes callback function"), and the stage runs on: press it again, as a user would
+    for _ in range(20):
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout=3)
+            break
+        except subprocess.TimeoutExpired:
+            continue
     proc.wait(timeout=120)
     reader.join()
     return proc.returncode, b"".join(chunks).decode(errors="replace")

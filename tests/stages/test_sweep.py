@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import mlflow
@@ -130,9 +132,16 @@ def test_sweep_on_a_real_slurm_cluster_matches_the_basic_launcher(basic_sweep, t
                                    "hydra.launcher.timeout_min=10", "hydra.launcher.cpus_per_task=1"], env)
         jobs = submitit_jobs(tmp_path)
         assert len(jobs) == 2
-        # SLURM ran them: its controller still knows both array tasks, completed
+        # SLURM ran them: its controller still knows both array tasks, completed (a task's result file is written
+        # before its python process, and so the task, ends: wait for that)
         for job in jobs:
-            p = subprocess.run(["scontrol", "-o", "show", "job", job.name], capture_output=True, text=True,
-                               env={**os.environ, **env})
-            assert "JobState=COMPLETED" in p.stdout, p.stdout + p.stderr
+            deadline = time.monotonic() + 60
+            while True:
+                p = subprocess.run(["scontrol", "-o", "show", "job", job.name], capture_output=True, text=True,
+                                   env={**os.environ, **env})
+                state = re.search(r"JobState=(\S+)", p.stdout)
+                if state is None or state.group(1) not in ("RUNNING", "COMPLETING") or time.monotonic() > deadline:
+                    break
+                time.sleep(0.5)
+            assert state is not None and state.group(1) == "COMPLETED", p.stdout + p.stderr
     assert_same_trials(basic_sweep, tmp_path, *run)
