@@ -145,3 +145,30 @@ def test_mutual_matcher_equals_opencv_cross_check(stereo, orb):
     ia, ib = hamming_mutual_matches(a.descriptors, b.descriptors)
     cv_matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(a.descriptors, b.descriptors)
     assert set(zip(ia.tolist(), ib.tolist())) == {(m.queryIdx, m.trainIdx) for m in cv_matches}
+
+
+def test_mutual_matcher_equals_opencv_cross_check_with_ties_and_order():
+    """The VO trackers take this matcher's pairs in its order (RANSAC samples them by index), so it must give
+    OpenCV's BFMatcher(crossCheck=True) list exactly, order included, also where distances tie: descriptors drawn
+    from a few distinct bit patterns, from few active bits, and random ones with copied rows."""
+    rng = np.random.default_rng(7)
+    n_ties = 0
+    for trial in range(240):
+        na, nb = (int(v) for v in rng.integers(1, 50, 2))
+        if trial % 3 == 0:  # few active bits: many equal distances
+            mask = rng.integers(0, 2, (1, 32))
+            a = (rng.integers(0, 2, (na, 32)) * mask).astype(np.uint8)
+            b = (rng.integers(0, 2, (nb, 32)) * mask).astype(np.uint8)
+        elif trial % 3 == 1:  # random, half of b copies rows of a
+            a = rng.integers(0, 256, (na, 32), dtype=np.uint8)
+            b = rng.integers(0, 256, (nb, 32), dtype=np.uint8)
+            b[: min(na, nb) // 2] = a[: min(na, nb) // 2]
+        else:  # three patterns only: every row has exact duplicates
+            base = rng.integers(0, 256, (3, 32), dtype=np.uint8)
+            a, b = base[rng.integers(0, 3, na)], base[rng.integers(0, 3, nb)]
+        d = np.unpackbits(a[:, None, :] ^ b[None, :, :], axis=2).sum(axis=2)
+        n_ties += int(np.any((d == d.min(axis=1, keepdims=True)).sum(axis=1) > 1))
+        ia, ib = hamming_mutual_matches(a, b)
+        cv_matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(a, b)
+        assert list(zip(ia.tolist(), ib.tolist())) == [(m.queryIdx, m.trainIdx) for m in cv_matches], trial
+    assert n_ties > 100  # the tie rule was really exercised

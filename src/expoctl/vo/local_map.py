@@ -48,6 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from expoctl.errors import InputError
+from expoctl.features.orb import hamming_mutual_matches
 from expoctl.vo.frame_to_frame import (TrackingResult, absolute_trajectory_error, grey_frame, relative_pose,
                                        relative_pose_error)
 
@@ -345,12 +346,13 @@ class MapTracker:
         ib = np.flatnonzero(b.point_of < 0)
         if len(ia) == 0 or len(ib) == 0:
             return
-        matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(a.desc[ia], b.desc[ib])
-        if not matches:
+        # cross-checked brute force, as OpenCV's BFMatcher(crossCheck=True) gives it (same pairs, same order) at a
+        # quarter of its time: this matching was a sixth of evaluate (20 older keyframes per new one)
+        ma, mb = hamming_mutual_matches(a.desc[ia], b.desc[ib])
+        if len(ma) == 0:
             return
-        qa = ia[np.array([m.queryIdx for m in matches])]
-        qb = ib[np.array([m.trainIdx for m in matches])]
-        dist = np.array([m.distance for m in matches])
+        qa, qb = ia[ma], ib[mb]
+        dist = hamming(a.desc[qa], b.desc[qb])
         qa, qb = qa[dist <= TH_LOW], qb[dist <= TH_LOW]
         if len(qa) == 0:
             return
