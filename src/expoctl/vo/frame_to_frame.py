@@ -1,8 +1,8 @@
 """Monocular frame-to-frame visual odometry for the tracking-success test (docs/evaluation.md, Tracking-success test).
 
-Per consecutive pair: ORB features (OpenCV), brute-force Hamming matching with cross-check (our numba matcher,
-`expoctl.features.orb.hamming_mutual_matches`: OpenCV's BFMatcher result in the same order, ~4× faster), essential matrix by
-RANSAC (cv2.findEssentialMat, known intrinsics K), relative pose by cv2.recoverPose. The tracked-inlier count of a
+Per consecutive pair: ORB features (OpenCV), brute-force Hamming matching with cross-check (the project's numba
+matcher, `expoctl.features.orb.hamming_mutual_matches`: OpenCV's BFMatcher list in the same order, one distance pass
+instead of two), essential matrix by RANSAC (cv2.findEssentialMat, known intrinsics K), relative pose by cv2.recoverPose. The tracked-inlier count of a
 pair is the number of matches consistent with the essential matrix (RANSAC inliers, `ransac_threshold_px`).
 A run FAILS at the first frame whose pair with the previous frame has fewer than `min_inliers` tracked
 inliers (ORB-SLAM2 loses track below roughly 15–20 matches); counts are still computed for every later pair so the

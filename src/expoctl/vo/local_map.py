@@ -346,8 +346,8 @@ class MapTracker:
         ib = np.flatnonzero(b.point_of < 0)
         if len(ia) == 0 or len(ib) == 0:
             return
-        # cross-checked brute force, as OpenCV's BFMatcher(crossCheck=True) gives it (same pairs, same order) at a
-        # quarter of its time: this matching was a sixth of evaluate (20 older keyframes per new one)
+        # cross-checked brute force, as OpenCV's BFMatcher(crossCheck=True) gives it (same pairs, same order) in one
+        # distance pass instead of two: with OpenCV this matching was a sixth of evaluate (docs/scale_out.md)
         ma, mb = hamming_mutual_matches(a.desc[ia], b.desc[ib])
         if len(ma) == 0:
             return
