@@ -3,7 +3,8 @@
 Per consecutive pair: ORB features (OpenCV), brute-force Hamming matching with cross-check (the project's numba
 matcher, `expoctl.features.orb.hamming_mutual_matches`: OpenCV's BFMatcher list in the same order, one distance pass
 instead of two), essential matrix by RANSAC (cv2.findEssentialMat, known intrinsics K), relative pose by
-cv2.recoverPose. The tracked-inlier count of a pair is the number of matches consistent with the essential matrix (RANSAC inliers, `ransac_threshold_px`).
+cv2.recoverPose. The tracked-inlier count of a pair is the number of matches consistent with the essential matrix
+(RANSAC inliers, `ransac_threshold_px`).
 A run FAILS at the first frame whose pair with the previous frame has fewer than `min_inliers` tracked
 inliers (ORB-SLAM2 loses track below roughly 15–20 matches); counts are still computed for every later pair so the
 whole run can be plotted, but the trajectory stops being meaningful there.
