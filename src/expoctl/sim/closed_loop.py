@@ -257,10 +257,30 @@ class RouteScene:
         from expoctl.world.backends import make_renderer
 
         self.renderer = make_renderer(city, render)
+        self._city, self._render = city, render
+        self._coarse: dict[int, object] = {}  # factor → renderer at 1/factor of the size (luminance_coarse)
         self._offset_m = {1: 0.0, 2: rig.baseline_m}
 
     def luminance(self, frame_index: int, exposure_us: float, camera: int) -> np.ndarray:
         return self.renderer.render_exposure(self.trajectory, frame_index, exposure_us, self._offset_m[camera])
+
+    def luminance_coarse(self, frame_index: int, exposure_us: float, camera: int, factor: int) -> np.ndarray:
+        """The same exposure rendered at 1/`factor` of the width and height (same field of view and physics, one
+        ray per coarse pixel): (H/factor, W/factor, 3) cd/m². The oracle scores its candidates at its matching size
+        with these (controllers.oracle.candidate_render)."""
+        from dataclasses import replace
+
+        from expoctl.world.backends import make_renderer
+
+        factor = int(factor)
+        w, h = self._render.width, self._render.height
+        if factor < 2 or w % factor or h % factor:
+            raise ValueError(f"coarse factor {factor} does not divide the {w}x{h} render")
+        if factor not in self._coarse:
+            self._coarse[factor] = make_renderer(self._city, replace(self._render, width=w // factor,
+                                                                     height=h // factor))
+        return self._coarse[factor].render_exposure(self.trajectory, frame_index, exposure_us,
+                                                    self._offset_m[camera])
 
     def timestamp_ns(self, frame_index: int) -> int:
         return int(self.trajectory.timestamps_ns[frame_index])

@@ -24,6 +24,12 @@ over the whole range (9 exposures 30 ms … 117 µs, gains 6 … 30 dB at 30 ms)
 Cost: rendering dominates. Candidates that share an exposure share one render (`CachedScene`, which the closed loop
 also reads, so a chosen grid candidate's render is reused for the real frame t+1), and matching runs at
 `match_width` (the ORB front end's working size is scaled down to it). `timings_ms` records each decision's time.
+With `candidate_render: match` the candidates are rendered at the matching size itself (the camera's size divided
+by the largest integer k with width/k >= match_width; 640x480 -> 320x240 for the default 320): one ray per pixel of
+the image the matcher reads instead of four, each pixel replicated k x k back to the camera's size so the sensor
+applies its own per-pixel noise, fixed pattern and clipping exactly as at full size. The frame the loop then
+delivers at the chosen setting is always rendered at full size; no other run ever sees a coarse render.
+docs/scale_out.md (The oracle's candidates at the matching size) has what it changes and costs.
 
 The loop does not pass the frame index, so the oracle counts frames from `first_frame` (the first frame the loop
 runs, warm-up included) and advances by one per `update` after `reset`.
@@ -44,6 +50,7 @@ from expoctl.errors import ConfigError
 _DEFAULT_EXPOSURES_US = tuple(round(EXPOSURE_US_MAX / 2.0**k, 1) for k in range(9))  # 30000 … 117.2 µs, 1 EV apart
 _DEFAULT_GAINS_DB = (6.0, 12.0, 18.0, 24.0, 30.0)  # 6.02 dB ≈ 1 EV of signal
 OBJECTIVES = ("match", "hybrid")
+CANDIDATE_RENDERS = ("full", "match")
 
 
 @dataclass(frozen=True)
@@ -57,6 +64,10 @@ class OracleParams:
     warmup_frames: int = 10  # evaluate runs the oracle with min(this, evaluate.warmup_frames) warm-up frames
     objective: str = "hybrid"  # hybrid (docs/controllers.md) | match (issue 7's rule); see the module docstring
     hybrid_feat_weight: float = 0.5  # hybrid: weight of the feature-best candidate's settings (labels' M_hybrid)
+    # full: each candidate rendered at the camera's size (then downscaled to match_width for matching); match: at
+    # the largest integer fraction of it not below match_width, pixels replicated back to the camera's size so the
+    # sensor adds the very noise it adds at full size (module docstring, Cost)
+    candidate_render: str = "full"
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "controllers.oracle") -> "OracleParams":
@@ -70,6 +81,7 @@ class OracleParams:
             warmup_frames=r.integer("warmup_frames", cls.warmup_frames, min=0),
             objective=r.choice("objective", OBJECTIVES, cls.objective),
             hybrid_feat_weight=r.number("hybrid_feat_weight", cls.hybrid_feat_weight, min=0.0, max=1.0),
+            candidate_render=r.choice("candidate_render", CANDIDATE_RENDERS, cls.candidate_render),
         )
         r.done()
         return cfg
@@ -96,16 +108,30 @@ class CachedScene:
     def __init__(self, scene, keep_frames: int = 2):
         self.scene = scene
         self.keep_frames = keep_frames
-        self._cache: dict[tuple[int, float, int], np.ndarray] = {}
+        self._cache: dict[tuple[int, float, int, int], np.ndarray] = {}
         self.n_renders = 0
 
     def luminance(self, frame_index: int, exposure_us: float, camera: int) -> np.ndarray:
-        key = (int(frame_index), float(exposure_us), int(camera))
+        return self._cached(frame_index, exposure_us, camera, 1)
+
+    @property
+    def has_coarse(self) -> bool:
+        """Whether the wrapped scene renders at a fraction of its size (`luminance_coarse`, a RouteScene does)."""
+        return hasattr(self.scene, "luminance_coarse")
+
+    def luminance_coarse(self, frame_index: int, exposure_us: float, camera: int, factor: int) -> np.ndarray:
+        """The wrapped scene's render at 1/factor of its size, cached apart from the full-size ones (a run that asks
+        for the full frame never gets a coarse one)."""
+        return self._cached(frame_index, exposure_us, camera, int(factor))
+
+    def _cached(self, frame_index: int, exposure_us: float, camera: int, factor: int) -> np.ndarray:
+        key = (int(frame_index), float(exposure_us), int(camera), factor)
         if key not in self._cache:
             stale = [k for k in self._cache if k[0] <= frame_index - self.keep_frames]
             for k in stale:
                 del self._cache[k]
-            self._cache[key] = self.scene.luminance(frame_index, exposure_us, camera)
+            self._cache[key] = (self.scene.luminance(frame_index, exposure_us, camera) if factor == 1 else
+                                self.scene.luminance_coarse(frame_index, exposure_us, camera, factor))
             self.n_renders += 1
         return self._cache[key]
 
@@ -147,6 +173,16 @@ class OracleController(Controller):
             self._frontend_cache[(h, w)] = OrbFrontEnd({**self._orb_params, "working_size": size})
         return self._frontend_cache[(h, w)]
 
+    def _coarse_factor(self, width: int, height: int) -> int:
+        """1, or with candidate_render "match" the largest k with width / k >= match_width that divides the image
+        (and the scene can render at 1/k): candidates are then rendered at (width/k, height/k)."""
+        if self.params.candidate_render != "match" or not self.scene.has_coarse:
+            return 1
+        k = width // self.params.match_width
+        while k > 1 and (width % k or height % k):
+            k -= 1
+        return max(k, 1)
+
     def reset(self, initial: Settings) -> None:
         self._t = self.first_frame
         self.timings_ms.clear()
@@ -167,8 +203,13 @@ class OracleController(Controller):
         prev = frontend.extract(grey)
         best_key, best = None, applied
         feat_key, feat_best = None, applied
+        factor = self._coarse_factor(image.shape[1], image.shape[0])
         for cand in self._candidates:
-            lum = self.scene.luminance(nxt, cand.exposure_us, self.camera)
+            if factor > 1:
+                lum = self.scene.luminance_coarse(nxt, cand.exposure_us, self.camera, factor)
+                lum = np.repeat(np.repeat(lum, factor, axis=0), factor, axis=1)
+            else:
+                lum = self.scene.luminance(nxt, cand.exposure_us, self.camera)
             img = self.sensor.capture(lum, cand.exposure_us, cand.gain_db, sensor_rng(self.seed, self.camera, nxt))
             cur = frontend.extract(rgb_to_grey(img))
             n_inl = int(frontend.match(prev, cur, nxt)[1])
