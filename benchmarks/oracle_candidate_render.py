@@ -71,6 +71,7 @@ def images(args, w, scene, sensor) -> list[dict]:
             n = [fe.n_features(fe.extract(rgb_to_grey(sensor.capture(lum, e, 0.0, sensor_rng(w.seed, 1, f)))))
                  for lum in (full, coarse)]
             rows.append({"frame": f, "exposure_us": e, "factor": k, "median_abs_dn": float(np.median(np.abs(d))),
+                         "mean_abs_dn": float(np.abs(d).mean()),
                          "mean_dn": float(d.mean()), "p99_abs_dn": float(np.percentile(np.abs(d), 99)),
                          "features_full": n[0], "features_match": n[1]})
         print(f"A: frame {f} done", flush=True)
@@ -124,6 +125,8 @@ def closed_loop(args, cfg, tmp: Path) -> dict:
     try:
         for name, code, mode in (("old", old, None), ("full", ROOT, "full"), ("match", ROOT, "match")):
             c = json.loads(json.dumps(cfg))
+            if mode is None:  # the code before render once knows neither key
+                c["evaluate"].pop("share_render", None)
             if mode:
                 c["controllers"]["oracle"] = {**(c["controllers"].get("oracle") or {}), "candidate_render": mode}
             config = tmp / f"config-{name}.json"
@@ -184,13 +187,15 @@ def main() -> None:
         if "A" in args.parts:
             rows = images(args, w, scene, sensor)
             out["images"] = rows
-            print("\n| exposure µs | median |Δ grey| DN (median over frames) | mean Δ DN | p99 |Δ| DN | "
+            _write(args.out, out)
+            print("\n| exposure µs | median |Δ grey| DN (median over frames) | mean |Δ| DN | mean Δ DN | p99 |Δ| DN | "
                   "features match / full |")
-            print("|---:|---:|---:|---:|---:|")
+            print("|---:|---:|---:|---:|---:|---:|")
             for e in sorted({r["exposure_us"] for r in rows}):
                 s = [r for r in rows if r["exposure_us"] == e]
                 ratio = sum(r["features_match"] for r in s) / max(1, sum(r["features_full"] for r in s))
                 print(f"| {e:.0f} | {statistics.median(r['median_abs_dn'] for r in s):.2f} | "
+                      f"{statistics.median(r['mean_abs_dn'] for r in s):.2f} | "
                       f"{statistics.median(r['mean_dn'] for r in s):+.2f} | "
                       f"{statistics.median(r['p99_abs_dn'] for r in s):.1f} | {ratio:.3f} |")
         if "B" in args.parts:
@@ -202,6 +207,7 @@ def main() -> None:
                                 "d_ev_max": max((r["d_ev"] for r in diff), default=0.0),
                                 "d_gain_db_max": max((r["d_gain_db"] for r in diff), default=0.0)}
             print("\nB:", json.dumps(out["decisions"]))
+            _write(args.out, out)
         if "C" in args.parts:
             out["closed_loop"] = res = closed_loop(args, cfg, tmp)
             t = res["times"]
@@ -209,10 +215,14 @@ def main() -> None:
                   f" old/full {t['old']['cpu_s'] / t['full']['cpu_s']:.2f}x, old/match "
                   f"{t['old']['cpu_s'] / t['match']['cpu_s']:.2f}x, full/match {t['full']['cpu_s'] / t['match']['cpu_s']:.2f}x")
             print("C:", json.dumps({k: v for k, v in res.items() if k != "times"}, indent=1))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(out, indent=2, default=float) + "\n")
+    _write(args.out, out)
     print("→", args.out)
     del np
+
+
+def _write(path: str, out: dict) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(out, indent=2, default=float) + "\n")
 
 
 if __name__ == "__main__":

@@ -111,3 +111,80 @@ def test_hybrid_objective_commands_between_the_match_and_feature_best():
     for t1, s, _, _ in oracle.choices:
         assert min(exps) <= s.exposure_us <= max(exps) and s.gain_db == 0.0
     assert len(frames) == 9 and all(f.camera(1).image.mean() > 20 for f in frames)
+
+
+# ------------------------------------------------------------------ candidates at the matching size (candidate_render)
+
+
+class CoarseScene:
+    """moving_scene plus luminance_coarse: the k×k block mean of the full luminance (what a coarse render of a
+    texture this smooth would give), recording every request."""
+
+    def __init__(self, level):
+        self.inner = moving_scene(level)
+        self.full_requests, self.coarse_requests = [], []
+
+    def luminance(self, frame, exposure_us, camera):
+        self.full_requests.append((frame, exposure_us))
+        return self.inner.luminance(frame, exposure_us, camera)
+
+    def luminance_coarse(self, frame, exposure_us, camera, factor):
+        self.coarse_requests.append((frame, exposure_us, factor))
+        lum = self.inner.luminance(frame, exposure_us, camera)
+        h, w = lum.shape[0] // factor, lum.shape[1] // factor
+        return lum.reshape(h, factor, w, factor, 3).mean(axis=(1, 3)).astype(np.float32)
+
+    def timestamp_ns(self, frame):
+        return self.inner.timestamp_ns(frame)
+
+
+def test_bad_candidate_render_names_the_key():
+    with pytest.raises(ConfigError, match="controllers.oracle.candidate_render"):
+        OracleParams.from_dict({"candidate_render": "half"})
+    assert OracleParams.from_dict({"candidate_render": "match"}).candidate_render == "match"
+
+
+@pytest.mark.parametrize("size, match_width, factor", [((640, 480), 320, 2), ((640, 480), 300, 2),
+                                                       ((640, 480), 200, 2), ((160, 120), 96, 1),
+                                                       ((100, 75), 30, 1), ((160, 120), 40, 4)])
+def test_coarse_factor_is_the_largest_divisor_not_below_the_matching_width(size, match_width, factor):
+    # 640 / 200 → 3 does not divide 640, so 2; 100×75 / 30 → 3 does not divide 100 and 2 not 75, so 1
+    oracle = OracleController(CachedScene(CoarseScene(lambda f: 1000.0)), LinearSensor(), 0, n_frames=10,
+                              params=OracleParams(match_width=match_width, candidate_render="match"))
+    assert oracle._coarse_factor(*size) == factor
+    full = OracleController(CachedScene(CoarseScene(lambda f: 1000.0)), LinearSensor(), 0, n_frames=10,
+                            params=OracleParams(match_width=match_width, candidate_render="full"))
+    assert full._coarse_factor(*size) == 1
+    # a scene that cannot render coarse: full size whatever the setting
+    plain = OracleController(CachedScene(moving_scene(lambda f: 1000.0)), LinearSensor(), 0, n_frames=10,
+                             params=OracleParams(match_width=match_width, candidate_render="match"))
+    assert plain._coarse_factor(*size) == 1
+
+
+def test_match_scores_coarse_candidates_with_the_real_noise_and_delivers_full_frames():
+    level = lambda f: 1000.0 if f < 6 else 20000.0  # noqa: E731
+    inner = CoarseScene(level)
+    scene = CachedScene(inner)
+    sensor = LinearSensor(noise_dn=2.0)
+    params = OracleParams(match_width=80, match_nfeatures=500, objective="match", candidate_render="match")
+    oracle = OracleController(scene, sensor, 5, n_frames=100, first_frame=0, params=params)
+    frames = list(run_closed_loop(scene, [sensor], oracle, Settings(0.0, 5000.0), range(0, 8), 5))
+    # every candidate came from a coarse render at 160/80 = 2; every delivered frame from a full one
+    exps = set(params.exposures_us)
+    assert {e for _, e, _ in inner.coarse_requests} == exps and {k for *_, k in inner.coarse_requests} == {2}
+    assert len(inner.coarse_requests) == len(exps) * len(oracle.choices)
+    delivered = [(f.frame_index, f.camera(1).settings.exposure_us) for f in frames]
+    assert sorted(inner.full_requests) == sorted(delivered)
+    # the oracle's inlier count for its choice is that of frame t (full) against the candidate image it scored:
+    # the coarse luminance replicated 2×2, captured with frame t+1's noise
+    from expoctl.sim.closed_loop import sensor_rng
+
+    fe = oracle._frontend((120, 160))
+    images = {f.frame_index: f.camera(1).image for f in frames}
+    for t1, chosen, n_inl, _ in oracle.choices[2:]:
+        if t1 >= 8:
+            continue
+        coarse = inner.luminance_coarse(t1, chosen.exposure_us, 1, 2)
+        lum = np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1)
+        img = sensor.capture(lum, chosen.exposure_us, chosen.gain_db, sensor_rng(5, 1, t1))
+        assert fe.match(fe.extract(rgb_to_grey(images[t1 - 1])), fe.extract(rgb_to_grey(img)), t1)[1] == n_inl
