@@ -204,10 +204,13 @@ class OracleController(Controller):
         best_key, best = None, applied
         feat_key, feat_best = None, applied
         factor = self._coarse_factor(image.shape[1], image.shape[0])
+        replicated: dict[float, np.ndarray] = {}  # the gain rungs share the longest exposure: replicate it once
         for cand in self._candidates:
             if factor > 1:
-                lum = self.scene.luminance_coarse(nxt, cand.exposure_us, self.camera, factor)
-                lum = np.repeat(np.repeat(lum, factor, axis=0), factor, axis=1)
+                lum = replicated.get(cand.exposure_us)
+                if lum is None:
+                    lum = self.scene.luminance_coarse(nxt, cand.exposure_us, self.camera, factor)
+                    lum = replicated[cand.exposure_us] = np.repeat(np.repeat(lum, factor, axis=0), factor, axis=1)
             else:
                 lum = self.scene.luminance(nxt, cand.exposure_us, self.camera)
             img = self.sensor.capture(lum, cand.exposure_us, cand.gain_db, sensor_rng(self.seed, self.camera, nxt))
