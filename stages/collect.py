@@ -15,7 +15,7 @@ log = logging.getLogger(__name__)
 #: iteration<N>.reference_gate: probe = the previous iteration's network drives camera 1 only if it passes the
 #: saturation probe (select_model.probe's test), otherwise iteration 1's reference does; none = always the network
 #: (the paper). Why: a network that runs into saturation records white frames whose labels can only say "darker"
-#: (docs/calibrated_seeds.md: seed 4's iteration-2 camera 1 was a median 98.7 % clipped).
+#: (docs/runs/calibrated_seeds/README.md: seed 4's iteration-2 camera 1 was a median 98.7 % clipped).
 REFERENCE_GATES = ("probe", "none")
 REFERENCE_REPORT = "collect_reference.json"
 

@@ -1,6 +1,6 @@
 """Which CPU a run used, recorded so that two runs of one commit can be told apart by their host.
 
-Same-commit runs are byte-identical on one machine (docs/old_camera_results.md), but numba compiles every kernel for the
+Same-commit runs are byte-identical on one machine (docs/runs/old_camera_results.md), but numba compiles every kernel for the
 host CPU (instruction set, FMA contraction) and numpy and OpenCV choose SIMD kernels at run time, so the last bit of
 a float — and, through training, a network — can move between machines. The numba target name is the part that
 decides its code generation; the model name is for people.

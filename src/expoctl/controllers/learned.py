@@ -25,7 +25,7 @@ Use the settings the frame was actually captured with (from the camera's per-fra
 are (the paper). "exposure_first" keeps the network's total exposure product t·10^(g/20) — the image brightness it
 asked for — but spends it on exposure time first and on gain only beyond 30 ms, as AG+AE does: less noise for the
 same signal, at the cost of motion blur. It exists because the iteration-2 network drifts to +7–10 dB gain at
-sub-millisecond exposures in daylight (docs/old_camera_results.md).
+sub-millisecond exposures in daylight (docs/runs/old_camera_results.md).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Why: in closed loop the network meets saturated frames (a start above the scene's level, every tunnel exit) that its
 data hardly contain: camera 1 follows a well-exposed reference and camera 2 stays within about ±1 EV of it. Whether a
 white frame is then an absorbing state was a draw of training: replicates on fixed data ended at +0.6…+2.1 EV or
-+5.6…+6.1 EV white from the same +6 EV start (docs/calibrated_seeds.md). This shows the network, during training,
++5.6…+6.1 EV white from the same +6 EV start (docs/runs/calibrated_seeds/README.md). This shows the network, during training,
 the states it has to leave, with the label it should go to.
 
 Physics: the delivered code is F(x) (`expoctl.camera.response`), with x the black-subtracted linear signal, which is

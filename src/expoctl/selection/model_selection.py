@@ -1,20 +1,20 @@
 """Closed-loop model selection: which iteration's network the pipeline hands to evaluation.
 
 Why it exists: the paper keeps the last iteration's network. Measured here, a later iteration's network can settle at
-a saturated closed-loop fixed point that its open-loop validation loss does not show (docs/old_camera_results.md: seed 2's
+a saturated closed-loop fixed point that its open-loop validation loss does not show (docs/runs/old_camera_results.md: seed 2's
 iteration 2 scored the same validation loss as the sound networks, then ran +5.6 EV above AG+AE with 89 % of the
 pixels clipped and lost VO on 3 of 4 windows). So every candidate network drives the simulated camera in closed
 loop, with the evaluate stage's protocol (warm-up, render size, sensor randomisation, both front ends, VO), over
 windows of the train or validation city (the latter already gives training its validation split) at traversals no
 other stage drives; the test city stays unseen until evaluation. Measured limit: over two traversals of either city
 seed 2's iteration 2 did not diverge (its divergence needs conditions those traversals lacked), so this stage did not
-catch it and is off by default (docs/old_camera_results.md).
+catch it and is off by default (docs/runs/old_camera_results.md).
 
 First, the saturation probe (`expoctl.selection.saturation_probe`, `select_model.probe`, on by default and cheap: about
 a minute per candidate at 320×240): each candidate starts in closed loop from its AG+AE level and from +6 EV above it,
 on the open road and in a tunnel of the training city's traversal 900. A candidate that ends some start with ≥ 97 % of
 the frame clipped has a saturated fixed point and is dropped (`probe_filter`; if every candidate fails, all stay). Every
-network that diverged in the evaluation failed it; the default seed's final network passes (docs/old_camera_results.md). With
+network that diverged in the evaluation failed it; the default seed's final network passes (docs/runs/old_camera_results.md). With
 `enabled: false` the last remaining candidate is the final model (the paper's choice among those that pass).
 
 With `enabled: true` the remaining candidates then drive the selection windows; the rule, lexicographic (`choose`):

@@ -4,10 +4,10 @@ Why: open-loop metrics (validation loss, `expoctl.net.follow`) describe a networ
 contain: camera 1 under a well-exposed reference, camera 2 within about ±1 EV of it. In closed loop the network also
 meets states its data never contain, and the worst of them is a saturated frame: it shows almost nothing of the
 scene, so nothing in the image tells the network how far to step down. If its step there is about zero, saturation is
-an absorbing state and the controller stays white. Measured (docs/old_camera_results.md): every network that diverged in the
+an absorbing state and the controller stays white. Measured (docs/runs/old_camera_results.md): every network that diverged in the
 evaluation ended this probe with 97–100 % of the frame clipped from some start; no sound one did. The dark side is
 the mirror image: a black frame shows as little, and two calibrated-camera networks settled 3–9 EV below AG+AE with
-nothing clipped white (docs/calibrated_seeds.md), so the probe also counts black pixels.
+nothing clipped white (docs/runs/calibrated_seeds/README.md), so the probe also counts black pixels.
 
 Protocol: the real simulator and sensor (one city, one traversal no stage collects or evaluates, e.g. 900), in closed
 loop, from one start frame in the middle of the route's longest open-road (static) stretch and one in the middle of

@@ -22,7 +22,7 @@ What is kept of ORB-SLAM2's tracking thread (facts from its paper and documented
   descriptor is its latest keyframe observation's; points not observed in the last `local_keyframes` (20)
   keyframes leave the local map. The map's density decides how deep a transition it survives: with 3 keyframes
   for triangulation and a 10-keyframe local map, AG+AE lost track at tunnel entries and on feature-poor open road
-  where the 20-keyframe map kept it (docs/old_camera_results.md).
+  where the 20-keyframe map kept it (docs/runs/old_camera_results.md).
 Geometry. With ground-truth poses (the simulator's evaluation) every frame takes its true pose: the count then
 measures only whether this image's features re-find the map built from the earlier images, which is what exposure
 control changes. Without bundle adjustment our monocular pose estimates jittered by metres within a few hundred
