@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 README_MAX_BYTES = 12_288
 
 _FENCE = re.compile(r"^\s*(```|~~~)")
-_CODE_SPAN = re.compile(r"(`+)(?:(?!\1).)+?\1")
+_CODE_SPAN = re.compile(r"(`+)(?:(?!\1)[^`]|(?!\1)`+)+?\1")
 _INLINE_LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\[\]]*\])*\]\(\s*(<[^>]*>|[^)\s]+)(?:\s+[\"'(][^)]*)?\)")
 _REFERENCE_DEF = re.compile(r"^\s{0,3}\[[^\]]+\]:\s*(<[^>]*>|\S+)")
 _HEADING = re.compile(r"^\s{0,3}(#{1,6})\s+(.*?)\s*#*\s*$")
@@ -33,14 +33,31 @@ def doc_files(root: Path = ROOT) -> list[Path]:
 
 
 def _lines_outside_code(text: str):
-    """(line number, line with inline code removed) for every line outside fenced code blocks."""
+    """(line number, line with inline code removed) for every line outside fenced code blocks.
+
+    A code span may run over a line break within a paragraph (CommonMark), so spans are removed per paragraph: a
+    link after a backtick that opens on the line before is inside code, and one after a span that closes is not."""
     fenced = False
+    paragraph: list[tuple[int, str]] = []
+
+    def flush():
+        if paragraph:
+            joined = _CODE_SPAN.sub(lambda m: "\n" * m.group(0).count("\n"), "\n".join(l for _, l in paragraph))
+            yield from zip((n for n, _ in paragraph), joined.split("\n"))
+            paragraph.clear()
+
     for number, line in enumerate(text.splitlines(), start=1):
         if _FENCE.match(line):
+            yield from flush()
             fenced = not fenced
             continue
-        if not fenced:
-            yield number, _CODE_SPAN.sub("", line)
+        if fenced:
+            continue
+        if line.strip():
+            paragraph.append((number, line))
+        else:
+            yield from flush()
+    yield from flush()
 
 
 def heading_slugs(text: str) -> set[str]:
@@ -141,3 +158,15 @@ def test_the_checker_reports_broken_links_and_passes_good_ones(tmp_path):
 def test_heading_slugs_follow_github():
     text = "# A, b & C!\n## Results (default scale)\n## Results (default scale)\n```\n# not a heading\n```\n"
     assert heading_slugs(text) == {"a-b--c", "results-default-scale", "results-default-scale-1"}
+
+
+def test_a_code_span_over_a_line_break_hides_links_only_inside_it(tmp_path):
+    # a span that opens on one line and closes on the next (CommonMark allows it within a paragraph) must not
+    # shift which text counts as code: here the link after the closing backtick is a real link, and is checked
+    (tmp_path / "README.md").write_text(
+        "# Project\n\nThe key (`train.weight:\n1.0`, [after the span](docs/gone.md)) and `x` [fine](#project).\n\n"
+        "`[inside](docs/inside.md)\nstill code` text.\n",
+        encoding="utf-8",
+    )
+    problems = broken_links([tmp_path / "README.md"], root=tmp_path)
+    assert problems == ["README.md:4: docs/gone.md (no such file)"], problems
