@@ -3,7 +3,7 @@
 In a throw-away copy of a commit (git archive), at fixture scale: `dvc repro train`, then `train.lr` changed and
 back, timing the repro that returns to the first settings. With the run-cache (outputs not persistent, before the
 safety change) DVC restores train's outputs from the cache; with persist it re-runs train. Prints a table and writes
-JSON. Usage: python benchmarks/run_cache_cost.py OLD_COMMIT NEW_COMMIT [--out benchmarks/results/run_cache_cost.json]
+JSON. Usage: python benchmarks/archive/run_cache_cost.py OLD_COMMIT NEW_COMMIT [--out benchmarks/archive/results/run_cache_cost.json]
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 
 
 def _copy(commit: str, dest: Path) -> dict:
@@ -48,7 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("old")
     ap.add_argument("new")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "run_cache_cost.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "archive" / "results" / "run_cache_cost.json"))
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

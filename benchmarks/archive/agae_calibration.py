@@ -5,7 +5,7 @@ product t·gain changed by a median 0.015–0.033 EV per frame, p99 0.16–0.29 
 sequences a `collect` run wrote (camera 1 = the reference controller, AG+AE in iteration 1) and prints the same
 statistics per sequence and over all, so the simulated loop's speed can be checked against the real camera's.
 
-    .venv/bin/python benchmarks/agae_calibration.py [RAW_DIR]    (default: data/raw)
+    .venv/bin/python benchmarks/archive/agae_calibration.py [RAW_DIR]    (default: data/raw)
 
 Prints a table and writes benchmarks/results/agae_calibration.json.
 """
@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.errors import InputError  # noqa: E402
@@ -38,7 +39,7 @@ def step_stats(steps: np.ndarray) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("raw_dir", nargs="?", type=Path, default=ROOT / "data" / "raw")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "agae_calibration.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "agae_calibration.json")
     args = ap.parse_args()
     per_seq, all_steps = {}, []
     try:

@@ -7,7 +7,7 @@ camera, the median share of pixels at or above SATURATED_DN, the share of frames
 median share of pixels at or below 5 DN (dark). Numbers from recorded images only: nothing here depends on the
 closed-loop evaluation.
 
-    .venv/bin/python benchmarks/iteration_data.py NAME=RUN [NAME=RUN ...]
+    .venv/bin/python benchmarks/archive/iteration_data.py NAME=RUN [NAME=RUN ...]
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.camera.response import DARK_DN, SATURATED_DN  # noqa: E402

@@ -13,7 +13,7 @@ C. Closed loop and speed: evaluate on the window with all seven controllers (eva
    `full` and with `match`. CPU seconds, the rows of every run but the oracle's compared with `full`, and the
    oracle's median NFM per (section, front end) against its bootstrap standard error; VO success.
 
-    .venv/bin/python benchmarks/oracle_candidate_render.py --frames 12 --old-ref f21af75
+    .venv/bin/python benchmarks/archive/oracle_candidate_render.py --frames 12 --old-ref f21af75
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path[:0] = [str(ROOT / "src"), str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]
 
 
@@ -174,7 +175,7 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=30, help="part C: warm-up frames of the causal controllers")
     ap.add_argument("--old-ref", default="f21af75", help="part C: the code before render once")
     ap.add_argument("--parts", default="ABC")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/oracle_candidate_render.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/archive/results/oracle_candidate_render.json"))
     args = ap.parse_args()
     import numpy as np
 

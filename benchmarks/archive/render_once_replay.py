@@ -7,12 +7,12 @@ sequences are replayed open-loop with `share_render: true` and with `false` agai
 the closed-loop rows exactly). Every frame is then captured at identical settings, pose and noise in both modes, and
 the per-frame-pair NFM differences (true − false) measure the render's own effect.
 
-Window and config: those of benchmarks/evaluate_render_once.py (test city tunnel-0 exit, 640×480, ±2 s, 30 warm-up
+Window and config: those of benchmarks/archive/evaluate_render_once.py (test city tunnel-0 exit, 640×480, ±2 s, 30 warm-up
 frames), for each of --seeds (each its own traversal, sun, sky and noise). Printed and written (--out): per
 controller and front end, the mean and median per-pair ΔNFM, its standard error over pairs, and the fraction of
 pairs that changed; per seed, the median |Δ mean grey|.
 
-    .venv/bin/python benchmarks/render_once_replay.py --seeds 1 2 3
+    .venv/bin/python benchmarks/archive/render_once_replay.py --seeds 1 2 3
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path[:0] = [str(ROOT / "src"), str(ROOT), str(ROOT / "benchmarks")]
 
 
@@ -78,7 +79,7 @@ def main() -> None:
     ap.add_argument("--before-s", type=float, default=2.0)
     ap.add_argument("--after-s", type=float, default=2.0)
     ap.add_argument("--warmup", type=int, default=30)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/render_once_replay.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/archive/results/render_once_replay.json"))
     args = ap.parse_args()
 
     import numpy as np

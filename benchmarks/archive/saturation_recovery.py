@@ -1,6 +1,6 @@
 """Does a learned controller recover from a badly exposed start? A closed-loop probe of its fixed points.
 
-    .venv/bin/python benchmarks/saturation_recovery.py models/controller.pt models/controller_iter2.pt
+    .venv/bin/python benchmarks/archive/saturation_recovery.py models/controller.pt models/controller_iter2.pt
 
 Open-loop metrics (validation loss, `closed_loop_gain.py`'s follow) describe a network in the states its training
 data contain: camera 1 under a well-exposed reference, camera 2 within about ±1 EV of it. In closed loop the network
@@ -22,7 +22,8 @@ import time
 from pathlib import Path
 
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.controllers.learned import LearnedController  # noqa: E402
@@ -48,7 +49,7 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "saturation_recovery.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "saturation_recovery.json")
     args = ap.parse_args()
     for ckpt in args.checkpoints:
         if not ckpt.is_file():

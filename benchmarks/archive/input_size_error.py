@@ -1,7 +1,7 @@
 """What a smaller network input costs in validation error, against the paper's 224×224, on a training subset.
 
-    .venv/bin/python benchmarks/input_size_error.py                      # pipeline data if present, else synthetic
-    .venv/bin/python benchmarks/input_size_error.py --samples data/samples.parquet --frames data/frames.parquet \
+    .venv/bin/python benchmarks/archive/input_size_error.py                      # pipeline data if present, else synthetic
+    .venv/bin/python benchmarks/archive/input_size_error.py --samples data/samples.parquet --frames data/frames.parquet \
         --images-dir data/images --sizes 224 128 96 --max-train 2000 --epochs 10
 
 The same subset, seed and hyperparameters at every size; only `model.input_size` changes (images are resized from
@@ -19,7 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT))  # for tests.support.synthetic_data (test support code, not part of the library)
 
 from expoctl.net.dataset import load_sample_sets_from_files  # noqa: E402
@@ -43,7 +44,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--exposure-scale", choices=["linear", "log"], default="log")
     ap.add_argument("--output", choices=["absolute", "residual"], default="residual")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "input_size_error.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "archive" / "results" / "input_size_error.json"))
     args = ap.parse_args()
 
     tmp = None

@@ -1,6 +1,6 @@
 """How much of the scene a trained network reads from the image, and the closed-loop offset that implies.
 
-    .venv/bin/python benchmarks/closed_loop_gain.py --data data/iter2 models/controller.pt models/controller_iter2.pt
+    .venv/bin/python benchmarks/archive/closed_loop_gain.py --data data/iter2 models/controller.pt models/controller_iter2.pt
 
 The probe (expoctl.net.follow, which also gives train.json its val_follow) is open-loop, on the validation
 split of a samples table: c111 and c222 share one label but differ in their input settings. follow 0 = the network
@@ -22,7 +22,7 @@ from expoctl.controllers.learned import LearnedController
 from expoctl.net.dataset import load_sample_sets_from_files
 from expoctl.io import write_json
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
 
 
 def main() -> None:
@@ -31,7 +31,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT / "data",
                     help="directory holding samples.parquet, frames.parquet and images/ (e.g. data/iter2)")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "closed_loop_gain.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "closed_loop_gain.json")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     t0 = time.perf_counter()

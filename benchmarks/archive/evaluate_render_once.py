@@ -12,14 +12,14 @@ frames.parquet / runs.parquet old vs new with share_render false must be equal e
 render counters (the registered prediction: bit-identical); with share_render true, per controller and section kind,
 the median NFM deltas against the old code next to the median's bootstrap standard error over frames.
 
-    .venv/bin/python benchmarks/evaluate_render_once.py --old-ref f21af75 --reps 2
+    .venv/bin/python benchmarks/archive/evaluate_render_once.py --old-ref f21af75 --reps 2
 
 --paired-seeds K asks a second question with this checkout only: is a NFM delta of share_render true against
 false a bias, or a closed loop amplifying a small change? For K top-level seeds (each its own traversal, sun, sky
 and sensor noise) it runs both share_render values on the same window and writes the paired deltas per
 (controller, front end), their mean and its standard error over seeds (--paired-out):
 
-    .venv/bin/python benchmarks/evaluate_render_once.py --paired-seeds 6 --controllers agae shin shim mean_intensity learned
+    .venv/bin/python benchmarks/archive/evaluate_render_once.py --paired-seeds 6 --controllers agae shin shim mean_intensity learned
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 CLOCK = ("controller_ms", "controller_ms_median", "seconds", "seconds_per_frame", "oracle_ms_median")
 COUNTERS = ("oracle_renders", "window_renders", "window_sharp_renders", "window_noise_draws")
 
@@ -189,11 +190,11 @@ def main() -> None:
     ap.add_argument("--before-s", type=float, default=2.0)
     ap.add_argument("--after-s", type=float, default=2.0)
     ap.add_argument("--warmup", type=int, default=30)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/evaluate_render_once.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/archive/results/evaluate_render_once.json"))
     ap.add_argument("--paired-seeds", type=int, default=0,
                     help="instead: share_render false vs true on this many seeds (this checkout only)")
     ap.add_argument("--controllers", nargs="+", default=["agae", "shin", "shim", "mean_intensity", "learned"])
-    ap.add_argument("--paired-out", default=str(ROOT / "benchmarks/results/evaluate_render_once_paired.json"))
+    ap.add_argument("--paired-out", default=str(ROOT / "benchmarks/archive/results/evaluate_render_once_paired.json"))
     args = ap.parse_args()
     if args.paired_seeds:
         paired_seeds(args)

@@ -13,7 +13,7 @@ It does this for the configured AG+AE (settings land at t+2) and for one more fr
 A simulated pass starts `--before-s` before a tunnel entry and ends `--after-s` after its exit, with `--warmup` frames
 (default 90, 6 s) so that AG+AE has settled outdoors, like the recorded pass (which starts at the entry).
 
-    .venv/bin/python benchmarks/agae_fit.py [--cities train validation] [--passes 4] [--width 320] [OVERRIDE ...]
+    .venv/bin/python benchmarks/archive/agae_fit.py [--cities train validation] [--passes 4] [--width 320] [OVERRIDE ...]
 
 OVERRIDEs are Hydra overrides as in params.yaml. Writes benchmarks/results/agae_fit.json.
 """
@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path[:0] = [str(ROOT / "src"), str(ROOT)]
 
 from bench_meta import run_metadata  # noqa: E402
@@ -176,7 +177,7 @@ def main() -> int:
     ap.add_argument("--warmup", type=int, default=90, help="frames AG+AE runs before the pass (settles outdoors)")
     ap.add_argument("--old", action="store_true", help="also drive the loop before the fit")
     ap.add_argument("--recording", type=Path, default=RECORDING)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "agae_fit.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "agae_fit.json")
     args = ap.parse_args()
     t0 = time.time()
     try:

@@ -9,7 +9,7 @@ cross-checked Hamming brute force, fundamental-matrix RANSAC (3 px, 0.99). Also 
 (conf/features: 2,000 match features at a 512×384 working size) on the same pairs. Percentiles per section
 (outside = static frames, tunnel transitions = dynamic frames).
 
-    .venv/bin/python benchmarks/orb_realism.py [--city train] [--sizes 640x480 320x240] [--every 3]
+    .venv/bin/python benchmarks/archive/orb_realism.py [--city train] [--sizes 640x480 320x240] [--every 3]
 
 Prints a table and writes benchmarks/results/orb_realism.json.
 """
@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.controllers.base import Settings  # noqa: E402
@@ -96,7 +97,7 @@ def main() -> int:
     ap.add_argument("--before-s", type=float, default=4.0)
     ap.add_argument("--after-s", type=float, default=4.0)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "orb_realism.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "orb_realism.json")
     args = ap.parse_args()
     rows = []
     for size in args.sizes:

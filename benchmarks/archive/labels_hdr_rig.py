@@ -7,9 +7,9 @@ panning crop of real HDR radiance maps (../shared/data/hdri), with a global ligh
 tunnel: entry over 10 frames, exit over 5). The sensor is a plain linear model written here (shot and read noise,
 full well, gain, 8-bit sRGB); no motion blur, no parallax between the two cameras. Then labels + label report.
 
-    .venv/bin/python benchmarks/labels_hdr_rig.py [--frames 140] [--scenes peppermint_powerplant_1k ...]
+    .venv/bin/python benchmarks/archive/labels_hdr_rig.py [--frames 140] [--scenes peppermint_powerplant_1k ...]
 
-Prints the report; writes benchmarks/results/labels_hdr_rig.json (stats) and labels_hdr_rig.md.
+Prints the report; writes benchmarks/archive/results/labels_hdr_rig.json (stats) and labels_hdr_rig.md.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from expoctl.labels.targets import LabelConfig, compute_labels
 from expoctl.sim.closed_loop import FunctionScene, run_closed_loop
 from expoctl.sim.protocol import PerturbationConfig
 
-HDRI = Path(__file__).resolve().parents[2] / "shared" / "data" / "hdri"
+HDRI = Path(__file__).resolve().parents[3] / "shared" / "data" / "hdri"
 SCENES = ("peppermint_powerplant_1k", "modern_buildings_2_1k", "autoshop_01_1k")
 W, H, PAN_PX = 256, 192, 3  # crop size and pan speed per frame
 

@@ -8,7 +8,7 @@ rig's controllers, not from the network), it compares, per region, the frame-t i
 network's raw prediction. A sample is "tunnel" when frame t's exposure is within `--cap-margin-ev` of the cap
 (the only way left to add light is gain); "open road" otherwise.
 
-    .venv/bin/python benchmarks/tunnel_gain.py --model models/controller_final.pt --samples data/iter2/samples.parquet \
+    .venv/bin/python benchmarks/archive/tunnel_gain.py --model models/controller_final.pt --samples data/iter2/samples.parquet \
         --frames data/iter2/frames.parquet --images-dir data/iter2/images [--split validation] [--out FILE.json]
 
 Prints one row per region: samples, median input/label/predicted gain (dB), median label and predicted step in
@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, exposure_value_ev, norm_to_exposure, norm_to_gain  # noqa: E402

@@ -11,7 +11,7 @@ parameters and noise seeds as `dvc repro evaluate` at the configured scale) and 
 step statistics over the recorded frames, the minimum dynamic NFM (ORB, libviso2-style) per city, each run's worst
 VO frame pair (tracked inliers) and where it lies, the VO successes, and the largest clipped share at a tunnel exit.
 
-    .venv/bin/python benchmarks/agae_sensitivity.py [--damping 0.2 0.5] [--max-step-ev 0.5 0.3] [OVERRIDE ...]
+    .venv/bin/python benchmarks/archive/agae_sensitivity.py [--damping 0.2 0.5] [--max-step-ev 0.5 0.3] [OVERRIDE ...]
 
 OVERRIDEs are Hydra overrides as in params.yaml (e.g. evaluate.splits.test.n_traversals=3). Needs a project whose
 train split has been collected (the evaluate stage tunes SumLog on it). Writes benchmarks/results/agae_sensitivity.json.
@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path[:0] = [str(ROOT / "src"), str(ROOT)]
 
 from agae_calibration import AUTHORS, EV_PER_DB, step_stats  # noqa: E402
@@ -72,7 +73,7 @@ def main() -> int:
     ap.add_argument("overrides", nargs="*", help="Hydra overrides (as in params.yaml)")
     ap.add_argument("--damping", type=float, nargs="+", default=[0.2, 0.5])
     ap.add_argument("--max-step-ev", type=float, nargs="+", default=[0.5, 0.3])
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "agae_sensitivity.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "agae_sensitivity.json")
     args = ap.parse_args()
     variants = {}
     t_start = time.time()

@@ -1,11 +1,11 @@
 """What a trained network commands on a clipped frame: its step (EV) on an all-white and an all-black input, over a
 grid of input settings.
 
-    .venv/bin/python benchmarks/white_step.py models/controller.pt [more.pt …] [--out FILE]
+    .venv/bin/python benchmarks/archive/white_step.py models/controller.pt [more.pt …] [--out FILE]
 
 An all-white frame (every code 255, in all three input frames) says only "overexposed": the next setting must be
 darker, whatever the settings planes say. A step ≥ 0 there means a white frame at those settings is an absorbing
-state of the closed loop, which `benchmarks/saturation_recovery.py` (the select_model probe) finds from a +6 EV start.
+state of the closed loop, which `benchmarks/archive/saturation_recovery.py` (the select_model probe) finds from a +6 EV start.
 A black frame is the mirror image. Open loop, no simulator, a few milliseconds per network. The step is
 output − input exposure product (exposure time and gain) in EV, with the output clamped to the network's range as the
 deployed controller clamps it. Writes benchmarks/results/white_step.json.
@@ -18,7 +18,8 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
@@ -34,7 +35,7 @@ GAINS_DB, EXPOSURES_US = GRID_GAINS_DB, GRID_EXPOSURES_US
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoints", nargs="+", type=Path)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "white_step.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "white_step.json")
     args = ap.parse_args()
     t0 = time.perf_counter()
     rows = {}

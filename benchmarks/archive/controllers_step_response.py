@@ -8,7 +8,7 @@ settle = frames after the step until the exposure product stays within 1/3 EV of
 over the 200 frames. Speed: median ms per update() at 640×480 over 30 calls.
 Second table: the same ±10 EV steps through the project's EMVA-1288 sensor (expoctl.camera.sensor, defaults, f/2):
 textured luminance with mean 5 cd/m² (tunnel interior) ↔ 5120 cd/m² (daylight).
-Usage: .venv/bin/python benchmarks/controllers_step_response.py
+Usage: .venv/bin/python benchmarks/archive/controllers_step_response.py
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ ways and reports, per exposure: the relative RMS error of each fast image agains
 which is what an 8-bit image after the camera response resolves), and the fine-detail energy ratio (mean squared
 Laplacian of log luminance, fast / reference: < 1 means the fast image is smoother than the reference).
 
-    .venv/bin/python benchmarks/render_once_fidelity.py --frames 8 --exposures-us 100 500 2000 8000
+    .venv/bin/python benchmarks/archive/render_once_fidelity.py --frames 8 --exposures-us 100 500 2000 8000
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path[:0] = [str(ROOT / "src"), str(ROOT), str(ROOT / "benchmarks")]
 
 
@@ -31,7 +32,7 @@ def main() -> None:
     ap.add_argument("--before-s", type=float, default=2.0)
     ap.add_argument("--after-s", type=float, default=2.0)
     ap.add_argument("--warmup", type=int, default=30)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/render_once_fidelity.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/archive/results/render_once_fidelity.json"))
     args = ap.parse_args()
 
     import cv2

@@ -1,6 +1,6 @@
 """Inliers vs exposure at fixed poses, and false detections vs gain at equal brightness (simulator spec, Validation).
 
-    .venv/bin/python benchmarks/exposure_response.py [--width 320 --height 240] [--step-ev 0.5] [--traversals 0 1 2 3]
+    .venv/bin/python benchmarks/archive/exposure_response.py [--width 320 --height 240] [--step-ev 0.5] [--traversals 0 1 2 3]
 
 Part 1 — the inverted U. At fixed poses of a traversal of the `train` city (`open_road`: the point farthest from any
 tunnel, in sun or overcast as the traversal draws; `tunnel`: middle of the first tunnel, lamps only, the exit portal
@@ -20,7 +20,7 @@ features), and detections on a flat field (uniform luminance: every detection is
 E.g. a flat field at 5 % of full well at 30 dB holds ~16 e⁻: σ ≈ √(16 + 2.8²) ≈ 4.9 e⁻, 30 % of the signal, ~10
 grey levels after the sRGB curve — FAST's threshold of 20 is 2 σ; at 0 dB σ is ~1.4 grey levels and nothing fires.
 
-Writes benchmarks/results/exposure_response.json and docs/exposure_response.png.
+Writes benchmarks/archive/results/exposure_response.json and docs/exposure_response.png.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX  # noqa: E402
@@ -206,7 +207,7 @@ def main() -> int:
     ap.add_argument("--flat-fractions", type=float, nargs="+", default=[0.05, 0.2],
                     help="flat-field signal as a share of the saturation signal")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "exposure_response.json")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "archive" / "results" / "exposure_response.json")
     ap.add_argument("--figure", type=Path, default=ROOT / "docs" / "exposure_response.png")
     args = ap.parse_args()
 

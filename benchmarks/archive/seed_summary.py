@@ -8,7 +8,7 @@ probe off would be the same), val loss and `val_follow` of the final network, th
 VO successes of both (frame to frame; against the map), and the median exposure-product offset of ours from AG+AE
 over every frame they both drove (EV, paired frame by frame).
 
-    .venv/bin/python benchmarks/seed_summary.py [--json OUT] [--prior JSON] SEED=DIR [SEED=DIR ...]
+    .venv/bin/python benchmarks/archive/seed_summary.py [--json OUT] [--prior JSON] SEED=DIR [SEED=DIR ...]
 
 `--prior` adds the rows of an earlier `--json` output for seeds whose checkouts are gone (a seed given as SEED=DIR
 replaces its prior row).
@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # this file is benchmarks/archive/<name>.py
+sys.path.append(str(ROOT / "benchmarks"))  # bench_meta, the helper it shares with the live benchmarks
 sys.path.insert(0, str(ROOT / "src"))
 
 from expoctl.camera.ranges import exposure_value_ev  # noqa: E402
