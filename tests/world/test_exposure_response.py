@@ -2,7 +2,7 @@
 an inverted U that moves with scene luminance; high gain at equal brightness raises false detections.
 
 Train city from conf/, traversal 0 (sun), 160×120, ORB as the features stage configures it; expoctl.sim.exposure_sweep
-does the sweeps (benchmarks/exposure_response.py reports the same at 320×240 with the libviso2-style front end too).
+does the sweeps (benchmarks/archive/exposure_response.py reports the same at 320×240 with the libviso2-style front end too).
 """
 
 from pathlib import Path
@@ -76,7 +76,7 @@ def test_open_road_inliers_form_an_inverted_u(sweeps):
 @pytest.mark.xfail(strict=True, reason="on the calibrated camera (f/5.8, 59.1°, portal daylight) the tunnel pose's ORB "
                    "curve is flat with two humps (120–136 inliers from 2.5 to 6.5 EV and again at 30 ms + 30 dB): the "
                    "first, set by the portal-lit walls, wins, 1.5 EV above the road's peak, while the p95 ratio is "
-                   "6.7 EV. It held on the old camera (70°, f/2); see `benchmarks/exposure_response.py`")
+                   "6.7 EV. It held on the old camera (70°, f/2); see `benchmarks/archive/exposure_response.py`")
 def test_tunnel_peak_moves_by_the_luminance_ratio(sweeps):
     """The rising side of the U is set by noise in the bulk of the image, the falling side by clipping of its
     brightest few per cent (measured clipped share at the peaks: 3–6 %). So the peak moves by at least the ratio of the
@@ -94,7 +94,7 @@ def test_tunnel_peak_moves_by_the_luminance_ratio(sweeps):
 
 
 @pytest.mark.xfail(strict=True, reason="spec expectation not met: the tunnel's peak moves ~6.5 EV, the median "
-                   "luminance ratio is ~9.1 EV — lamps and the exit portal clip first (see benchmarks/exposure_response)")
+                   "luminance ratio is ~9.1 EV — lamps and the exit portal clip first (see benchmarks/archive/exposure_response)")
 def test_tunnel_peak_moves_by_the_median_luminance_ratio(sweeps):
     (road, y_road), (tunnel, y_tunnel) = sweeps["open_road"], sweeps["tunnel"]
     shift_ev = xs.peak(tunnel, "orb").ev - xs.peak(road, "orb").ev

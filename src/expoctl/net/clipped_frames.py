@@ -4,7 +4,7 @@ Why: a frame with every pixel clipped says only "overexposed", whatever the sett
 "underexposed". A network whose step there is ≥ 0 (white) or ≤ 0 (black) has an absorbing state in closed loop. The
 training data hardly hold such frames, so the step there is left to the draw of training: over eleven replicate
 networks the four that fail the saturation probe step +0.02 to +0.23 EV on an all-white frame next to the probe's
-start, the seven that pass −0.12 to −0.85 EV (docs/runs/calibrated_seeds/README.md, `benchmarks/white_step.py`). Labelled
+start, the seven that pass −0.12 to −0.85 EV (docs/runs/calibrated_seeds/README.md, `benchmarks/archive/white_step.py`). Labelled
 brightened samples (`expoctl.net.exposure_shift`) did not fix the step. This term states the physics directly.
 
 Loss (added to the L1 loss with weight λ = `train.clipped_frame_weight`): for uniform frames (the three input frames

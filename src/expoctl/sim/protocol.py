@@ -18,7 +18,7 @@ Our choices where the paper is silent (documented so a reader can check them):
 
 Beyond the paper (off unless `excursion_probability` > 0): **large excursions**. The quadrant cycle keeps camera 2
 within about ±1 EV of camera 1, so the training data never show the network a badly exposed frame, and in closed
-loop its step in such states is unconstrained (`benchmarks/saturation_recovery.py`). With excursions, the frames are
+loop its step in such states is unconstrained (`benchmarks/archive/saturation_recovery.py`). With excursions, the frames are
 cut into blocks of `excursion_frames`; each block is, with probability `excursion_probability`, an excursion: for
 the whole block camera 2's exposure product is camera 1's × 2^(±m), m ~ U[`excursion_ev`], the sign drawn per block
 (split exposure first: camera 1's gain is kept while the exposure time has range, then gain moves). A block's draw
