@@ -80,9 +80,11 @@ def read_params(path: Path) -> tuple[list[str] | None, list[str]]:
 
 
 def composed_and_checked(params_path: Path) -> tuple[dict, list[str]]:
-    """The composed config of params.yaml's overrides, checked; InputError with every problem of params.yaml and of
-    the config, one per line."""
+    """The composed config of params.yaml's overrides, checked, with the keys compose derives from it (stages/table.py
+    `derived_config`: the sections of `controllers` each collect stage reads, under a key DVC can track); InputError
+    with every problem of params.yaml and of the config, one per line."""
     from stages.config_check import check_resolved
+    from stages.table import derived_config
 
     overrides, problems = read_params(params_path)
     cfg = None
@@ -90,6 +92,7 @@ def composed_and_checked(params_path: Path) -> tuple[dict, list[str]]:
         try:
             cfg = compose_config(overrides)
             check_resolved(cfg)
+            cfg = {**cfg, **derived_config(cfg)}  # after the check, which refuses these keys as settings
         except ConfigError as exc:
             problems += [f"config key '{k}': {p}" for k, p in exc.problems]
         except InputError as exc:

@@ -63,7 +63,11 @@ def _vars(doc: dict) -> dict:
 
 def resolved_stages(root: Path) -> dict[str, dict]:
     """{stage name: its dvc.yaml definition}, `foreach` stages expanded to `<name>@<key>`."""
-    doc = yaml.safe_load((root / "dvc.yaml").read_text()) or {}
+    return resolve_document(yaml.safe_load((root / "dvc.yaml").read_text()) or {})
+
+
+def resolve_document(doc: dict) -> dict[str, dict]:
+    """`resolved_stages` of a dvc.yaml document already read (stages/dvc_yaml.py compares a generated one)."""
     variables = _vars(doc)
     out: dict[str, dict] = {}
     for name, stage in (doc.get("stages") or {}).items():

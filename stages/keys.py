@@ -1,8 +1,8 @@
-"""The DVC contract: which keys of configs/resolved.yaml each stage reads, and the stages' names.
+"""The config keys of configs/resolved.yaml each stage reads, and the stages' names.
 
-dvc.yaml declares exactly these keys as each stage's `params` (tests/pipeline/test_dvc_yaml.py checks that the two
-agree), so `dvc repro` re-runs a stage only when a key it reads changes. The same keys are what a stage's MLflow run
-logs as params and hashes into its `config_hash` tag.
+The keys come from the stage table (stages/table.py), which dvc.yaml is generated from, so a stage's DVC `params`
+are exactly these keys and `dvc repro` re-runs a stage only when a key it reads changes. The same keys are what a
+stage's MLflow run logs as params and hashes into its `config_hash` tag.
 """
 
 from __future__ import annotations
@@ -14,30 +14,14 @@ from typing import Any
 
 from expoctl.errors import InputError
 from stages.project import RESOLVED_CONFIG
+from stages.table import LAST_ITERATION, STAGE_BY_NAME, STAGES, config_keys
 
-#: Data-collection iterations 2 … LAST_ITERATION run as the DVC `foreach` stages `<name>_iter@<N>` (conf/config.yaml
-#: `iteration<N>` blocks; dvc.yaml `vars: later_iterations`). The final model, which evaluate drives, is the one
-#: select_model chooses among them (paths.final_model).
-LAST_ITERATION = 3
+__all__ = ["LAST_ITERATION", "STAGE_KEYS", "config_hash", "select_keys", "split_stage_name", "stage_keys",
+           "stage_name"]
 
-#: The keys each iteration-1 stage reads (the later iterations' additions are in `stage_keys`).
-STAGE_KEYS: dict[str, list[str]] = {
-    # `parallel` (where the jobs run, never what they compute) is read by the stages that fan out
-    "collect": ["seed", "sensor", "world", "rig", "collect", "controllers.agae", "paths.raw_dir", "parallel"],
-    "ingest": ["ingest", "paths.raw_dir", "paths.frames", "paths.images_dir"],
-    "features": ["features", "paths.frames", "paths.features", "paths.matches", "parallel"],
-    "labels": ["labels", "paths.frames", "paths.features", "paths.matches", "paths.labels", "paths.reports_dir"],
-    "samples": ["samples", "paths.frames", "paths.labels", "paths.samples"],
-    "train": ["seed", "model", "train", "sensor", "paths.samples", "paths.frames", "paths.images_dir", "paths.model",
-              "paths.reports_dir"],
-    # select_model reads every iteration's enabled flag and model path: the candidates
-    "select_model": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "select_model",
-                     "paths.model", "paths.final_model", "paths.frames", "paths.reports_dir", "parallel"]
-                    + [f"iteration{n}.{k}" for n in range(2, LAST_ITERATION + 1) for k in ("enabled", "paths.model")],
-    "evaluate": ["seed", "sensor", "world", "rig", "controllers", "features", "evaluate", "paths.final_model",
-                 "paths.frames", "paths.reports_dir", "parallel"],
-    "report": ["report", "paths.reports_dir", "paths.final_model"],
-}
+#: The keys each iteration-1 stage reads (stages that read none, guard and compose, are not listed); the later
+#: iterations' are `stage_keys("<name>_iter@<N>")`.
+STAGE_KEYS: dict[str, list[str]] = {s.name: config_keys(s, 1) for s in STAGES if config_keys(s, 1)}
 
 # DVC names a foreach stage `<stage>@<key>`; ours are `collect_iter@2`, `train_iter@3`, …
 _ITERATION_STAGE = re.compile(r"^(?P<base>\w+)_iter@(?P<n>\d+)$")
@@ -57,19 +41,15 @@ def split_stage_name(stage: str) -> tuple[str, int]:
 
 
 def stage_keys(stage: str) -> list[str]:
-    """Config keys of a DVC stage. `<name>_iter@<N>` reads its base stage's keys, its own `iteration<N>` block's
-    `enabled` and `paths`, and every earlier iteration's paths (its raw directories are ingested again, the previous
-    model is collect's reference, the previous tables are reused); collect also reads `iteration<N>.collect`."""
+    """Config keys of a DVC stage (stages/table.py `config_keys`): `<name>_iter@<N>` reads its base stage's keys in
+    iteration N, its own `iteration<N>` block's `enabled` and `paths`, every earlier iteration's paths, and what the
+    table adds for later iterations (collect: `iteration<N>.collect`, its reference gate and the probe). [] for a
+    name that is no stage of the table, or no iteration of one."""
     base, n = split_stage_name(stage)
-    if n == 1:
-        return STAGE_KEYS.get(stage, [])
-    keys = STAGE_KEYS[base] + [f"iteration{n}.enabled", f"iteration{n}.paths"]
-    keys += [f"iteration{k}.paths" for k in range(2, n)]
-    if base == "collect":  # iterations ≥ 2 drive camera 1 with the learned network (its latency_frames) if it
-        # passes the saturation probe (`iteration<N>.reference_gate`)
-        keys += ["controllers.learned", f"iteration{n}.collect", f"iteration{n}.reference_gate",
-                 "select_model.probe"] + (["paths.model"] if n == 2 else [])
-    return keys
+    entry = STAGE_BY_NAME.get(base)
+    if entry is None or (n > 1 and (not entry.iterated or n > LAST_ITERATION)):
+        return []
+    return config_keys(entry, n)
 
 
 def select_keys(cfg: dict[str, Any], keys: list[str]) -> dict[str, Any]:

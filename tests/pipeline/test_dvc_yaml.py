@@ -1,4 +1,5 @@
-"""dvc.yaml declares, per stage, exactly the resolved-config keys the stage reads (stages.keys.STAGE_KEYS).
+"""dvc.yaml declares, per stage, exactly the resolved-config keys the stage reads (stages.keys, from the stage table
+stages/table.py), and DVC sees a change of any of them.
 
 The stages are read as DVC resolves them (its `foreach` expands the later iterations), not as raw YAML."""
 
@@ -51,7 +52,8 @@ def test_every_iteration_has_its_stages_with_its_own_outputs(stages):
             assert stage_name(base, n) in stages, f"{stage_name(base, n)} missing from dvc.yaml"
         collect = stages[stage_name("collect", n)]
         previous_model = "models/controller.pt" if n == 2 else f"models/controller_iter{n - 1}.pt"
-        assert previous_model in collect[3] and "src/expoctl/selection/saturation_probe.py" in collect[3]
+        # the previous network, and the probe that gates it (a file, or the directory holding it)
+        assert previous_model in collect[3] and _covered("src/expoctl/selection/saturation_probe.py", collect[3])
         # its raw data, and which controller drove camera 1 (the reference gate's decision)
         assert collect[4] == [f"data/raw_iter{n}", f"reports/iter{n}/collect_reference.json"]
         ingest = stages[stage_name("ingest", n)]
@@ -61,6 +63,10 @@ def test_every_iteration_has_its_stages_with_its_own_outputs(stages):
                             f"reports/iter{n}/train.json"]
     assert not any(name.startswith(tuple(f"{b}_iter@{LAST_ITERATION + 1}" for b in ITERATION_STAGES))
                    for name in stages)
+
+
+def _covered(path: str, deps: list[str]) -> bool:
+    return any(path == d or path.startswith(d.rstrip("/") + "/") for d in deps)
 
 
 def test_one_small_headline_metric(stages):
@@ -73,9 +79,11 @@ def test_one_small_headline_metric(stages):
 def test_stage_keys_exist_in_every_scale(stages):
     from stages.compose import compose_config
     from stages.keys import select_keys
+    from stages.table import derived_config
 
     for scale in ("fixture", "default", "paper"):
         cfg = compose_config([f"scale={scale}"])
+        cfg.update(derived_config(cfg))  # as compose writes it
         assert cfg["scale_name"] == scale
         for name in stages:
             if name not in ("compose", "guard"):
@@ -90,3 +98,26 @@ def test_raw_dvc_yaml_has_no_copied_iteration_blocks():
         assert raw[f"{base}_iter"]["foreach"] == "${later_iterations}", base
     (iterations,) = [v["later_iterations"] for v in doc["vars"] if "later_iterations" in v]
     assert sorted(iterations, key=int) == [str(n) for n in range(2, LAST_ITERATION + 1)]
+
+
+def test_dvc_status_sees_a_change_of_the_controller_collect_builds(project_copy):
+    """With `collect.reference_controller: shin`, a change of `controllers.shin` makes `dvc status` list collect as
+    changed (its params: compose copies the section it reads to `collect_controllers.iteration1`); a change of a
+    controller collect does not build leaves it up to date."""
+    p = project_copy
+    shin = ["scale=fixture", "collect.reference_controller=shin"]
+    p.set_overrides(shin)
+    p.dvc("repro", "compose")
+    (p.root / "data" / "raw").mkdir(parents=True)
+    (p.root / "data" / "raw" / "stand-in.txt").write_text("what collect wrote\n")
+    p.dvc("commit", "-f", "collect")  # dvc.lock records collect as run with this config
+    assert "collect" not in p.dvc("status", "collect").stdout
+
+    p.set_overrides(shin + ["controllers.shim.k_p=0.3"])  # a controller collect does not build
+    p.dvc("repro", "compose")
+    assert "collect" not in p.dvc("status", "collect").stdout
+
+    p.set_overrides(shin + ["controllers.shin.alpha=0.5"])
+    p.dvc("repro", "compose")
+    status = p.dvc("status", "collect").stdout
+    assert "collect:" in status and "collect_controllers.iteration1" in status, status

@@ -33,3 +33,17 @@ def test_later_iterations_read_their_block_and_every_earlier_iterations_paths():
     assert {"iteration2.reference_gate", "select_model.probe"} <= set(stage_keys("collect_iter@2"))
     assert "iteration3.reference_gate" in stage_keys("collect_iter@3")
     assert stage_keys("no_such_stage") == []
+
+
+def test_collect_reads_the_sections_compose_copies_for_it():
+    """collect's controller sections are declared through `collect_controllers.iteration<N>` (which compose derives
+    from collect's reference controller), not a fixed `controllers.agae`."""
+    assert "collect_controllers.iteration1" in stage_keys("collect")
+    assert not any(k.startswith("controllers") for k in stage_keys("collect"))
+    for n in (2, 3):
+        keys = stage_keys(f"collect_iter@{n}")
+        assert f"collect_controllers.iteration{n}" in keys and "collect_controllers.iteration1" not in keys
+        assert not any(k.startswith("controllers") for k in keys)
+    # every other stage's keys are as before the table: evaluate and select_model read all of `controllers`
+    assert "controllers" in stage_keys("evaluate") and "controllers" in stage_keys("select_model")
+    assert len(stage_keys("collect_iter@3")) == len(set(stage_keys("collect_iter@3")))  # each key once
