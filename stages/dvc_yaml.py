@@ -285,7 +285,9 @@ def _cmd(stage: Stage, n: int) -> str:
 
 def concrete(stage: Stage, n: int, conf: dict, code: list[str]) -> Concrete:
     """Stage `stage` in iteration `n`, straight from the table (no templating)."""
-    values = lambda k: placeholder_values(conf, k)  # noqa: E731
+    def values(k: int) -> dict[str, str]:
+        return placeholder_values(conf, k)
+
     deps = stage.deps + (stage.later_deps if n >= 2 else ())
     outs = stage.outs + (stage.later_outs if n >= 2 else ())
     return Concrete(_cmd(stage, n), tuple(dict.fromkeys([_path(t).format(**v) for t, v in expand(deps, n, values)]

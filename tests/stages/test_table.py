@@ -123,6 +123,20 @@ def test_every_dynamic_import_table_entry_is_a_module_that_imports_by_name():
         assert (PROJECT_ROOT / rel).is_file(), f"RUNTIME_DATA names {rel}, which no longer exists"
 
 
+def test_the_generator_is_no_stage_dependency_and_the_table_imports_only_the_standard_library():
+    """Every stage but guard imports stages/table.py (through stages/keys.py), so their deps list it: it must not
+    pull in more. The generator itself is run by hand, never by a stage."""
+    import ast
+
+    closures = {stage.name: import_closure(f"stages.{stage.name}") for stage in table.STAGES}
+    assert [name for name, files in closures.items() if "stages/table.py" not in files] == ["guard"]
+    assert [name for name, files in closures.items() if "stages/dvc_yaml.py" in files] == []
+    tree = ast.parse((PROJECT_ROOT / "stages" / "table.py").read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert imported == {"__future__", "dataclasses", "typing"}
+
+
 # --- later iterations ------------------------------------------------------------------------------------------------
 
 
