@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError
-from expoctl.world import Renderer, load_city
+from expoctl.world import RenderConfig, Renderer, load_city
 from expoctl.world import clear_sky as cs
 from expoctl.world.city import Conditions
 from expoctl.world.shade import MAT_SKY
@@ -123,7 +123,7 @@ def test_traversal_conditions_and_config_keys():
 def test_rendered_sky_pixels_follow_the_distribution():
     city = load_city("train")
     c = city.conditions(0, 0)
-    r = Renderer(city, 96, 72, 90.0, conditions=c)
+    r = Renderer(city, RenderConfig(width=96, height=72, hfov_deg=90.0), conditions=c)
     pose = city.pose_at_s(250.0, 0.0)
     pose[:3, :3] = pose[:3, :3] @ np.array([[1, 0, 0], [0, math.cos(1.0), -math.sin(1.0)],
                                             [0, math.sin(1.0), math.cos(1.0)]])  # pitch up ~57°

@@ -41,8 +41,8 @@ def scene(request, gl_ok):
     """Sunny traversal (shadow rays); the test city has a curved arch tunnel."""
     city = load_city(request.param)
     traj = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if not t.conditions.overcast)
-    return (city, traj, Renderer(city, W, H, 70.0, conditions=traj.conditions),
-            gl_renderer.GLRenderer(city, W, H, 70.0, conditions=traj.conditions))
+    return (city, traj, Renderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=traj.conditions),
+            gl_renderer.GLRenderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=traj.conditions))
 
 
 def _rel(a, b):
@@ -191,8 +191,8 @@ def test_other_skies_match_numba(gl_ok, sky):
         city = load_city("train")
         cond = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if t.conditions.overcast
                     ).conditions
-    ref_r = Renderer(city, W, H, 70.0, conditions=cond)
-    gl_r = gl_renderer.GLRenderer(city, W, H, 70.0, conditions=cond)
+    ref_r = Renderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=cond)
+    gl_r = gl_renderer.GLRenderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=cond)
     start = float(city.cfg["tunnels"][0]["start_m"])
     sky_share = []
     for s, m in ((250.0, np.eye(3)), (250.0, UP), (start - 20.0, np.eye(3))):
@@ -210,7 +210,7 @@ def test_storage_buffer_fallback_for_long_routes(scene, monkeypatch):
     pose = city.pose_at_s(250.0, 0.0)
     ubo = gl_r.render_full(pose, glare=False)
     monkeypatch.setattr(gl_renderer, "_seg_fits_uniform_block", lambda ctx, nbytes: False)
-    r = gl_renderer.GLRenderer(city, W, H, 70.0, conditions=gl_r.conditions)
+    r = gl_renderer.GLRenderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=gl_r.conditions)
     ssbo = r.render_full(pose, glare=False)
     assert not r._gl["seg_in_ubo"]
     for key in ("luminance", "depth", "code", "material"):
@@ -227,8 +227,8 @@ def test_lighting_variants_match_numba(gl_ok, variant):
     city = load_city(dict({"base": "train"}, **over))
     cond = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if not t.conditions.overcast
                 ).conditions
-    ref_r = Renderer(city, W, H, 70.0, conditions=cond)
-    gl_r = gl_renderer.GLRenderer(city, W, H, 70.0, conditions=cond)
+    ref_r = Renderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=cond)
+    gl_r = gl_renderer.GLRenderer(city, RenderConfig(width=W, height=H, hfov_deg=70.0), conditions=cond)
     start = float(city.cfg["tunnels"][0]["start_m"])
     for s, m in ((250.0, UP), (start + 6.0, np.eye(3)), (start + 40.0, np.eye(3))):
         pose = city.pose_at_s(s, 0.0)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from expoctl.errors import ConfigError
-from expoctl.world import Renderer, intrinsics, load_city, make_renderer
+from expoctl.world import RenderConfig, Renderer, intrinsics, load_city, make_renderer
 from expoctl.world.shade import MAT_LAMP, MAT_SKY
 
 Y_RGB = np.array([0.2126, 0.7152, 0.0722])
@@ -19,7 +19,7 @@ def train():
     city = load_city("train")
     traj = city.traversal(0, 60, fps=15.0, seed=0)
     assert not traj.conditions.overcast and traj.conditions.sun_direction[2] > 0.3
-    return city, traj, Renderer(city, 160, 120, 70.0, conditions=traj.conditions)
+    return city, traj, Renderer(city, RenderConfig(width=160, height=120, hfov_deg=70.0), conditions=traj.conditions)
 
 
 def _view(renderer, city, s):
@@ -112,7 +112,7 @@ def test_blur_fast_path_matches_reference(train):
     Error metric: mean |Δ log(1 + Y)|; the fast path must close most of the gap between a sharp frame and the
     reference. Measured (160×120, train traversal 0): fast ≈ 0.039, sharp ≈ 0.049."""
     city, traj, _ = train
-    r = Renderer(city, 160, 120, 70.0, conditions=traj.conditions, glare_fraction=0.0)
+    r = Renderer(city, RenderConfig(width=160, height=120, hfov_deg=70.0, glare_fraction=0.0), conditions=traj.conditions)
     t0 = traj.timestamps_ns[5] * 1e-9
     ref = r.render_exposure(traj, 5, 30000.0, method="reference") @ Y_RGB
     fast = r.render_exposure(traj, 5, 30000.0, method="fast") @ Y_RGB
@@ -155,7 +155,7 @@ def test_hdri_sky():
     city = load_city({"base": "train", "name": "hdri", "traversal": {
         "hdri": {"path": str(path), "median_cd_m2": 5000.0, "azimuth_deg": 30.0}}})
     traj = city.traversal(0, 5)
-    r = Renderer(city, 160, 120, 70.0, conditions=traj.conditions)
+    r = Renderer(city, RenderConfig(width=160, height=120, hfov_deg=70.0), conditions=traj.conditions)
     out = r.render_full(city.pose_at_s(250.0, 0.0), glare=False)
     sky = out["luminance"][out["material"] == MAT_SKY] @ Y_RGB
     assert 1000 < np.median(sky) < 25000  # rescaled to an absolute level around the configured median
@@ -172,7 +172,7 @@ def test_shared_render_serves_second_camera(train):
     """share_render: camera 2 (3.92 cm right, other exposure) warped from camera 1's render. Measured log-error vs
     camera 2's own reference ≈ 0.045 (both 30 ms) and ≈ 0.08 (camera 2 at 0.2 ms: pure parallax warp)."""
     city, traj, _ = train
-    r = Renderer(city, 160, 120, 70.0, conditions=traj.conditions, glare_fraction=0.0, share_render=True)
+    r = Renderer(city, RenderConfig(width=160, height=120, hfov_deg=70.0, glare_fraction=0.0, share_render=True), conditions=traj.conditions)
     r.render_exposure(traj, 5, 30000.0)
     cam2 = r.render_exposure(traj, 5, 30000.0, camera_offset_m=0.0392) @ Y_RGB
     assert len(r._cache) == 1  # one render served both cameras
@@ -200,7 +200,7 @@ def test_mip_mapping_suppresses_aliasing_flicker(train):
     pose_b[:3, 3] += pose_a[:3, 0] * 0.02  # 2 cm sideways: < 0.1 px at 40 m
     flicker = {}
     for bias in (1.0, 0.02):
-        r = Renderer(city, 160, 120, 70.0, conditions=traj.conditions, mip_bias=bias, glare_fraction=0.0)
+        r = Renderer(city, RenderConfig(width=160, height=120, hfov_deg=70.0, mip_bias=bias, glare_fraction=0.0), conditions=traj.conditions)
         a, b = (r.render_full(p, glare=False) for p in (pose_a, pose_b))
         far = (a["depth"] > 40) & np.isfinite(a["depth"]) & (a["material"] < 200)
         ya, yb = a["luminance"] @ Y_RGB, b["luminance"] @ Y_RGB

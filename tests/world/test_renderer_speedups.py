@@ -7,7 +7,7 @@ import numba
 import numpy as np
 import pytest
 
-from expoctl.world import Renderer, load_city
+from expoctl.world import RenderConfig, Renderer, load_city
 from expoctl.world import raycast as rc
 from expoctl.world.raycast import PROP, SIDE, SKY, TCEIL, TWALL, spread_stride
 from render_poses import tunnel_poses
@@ -22,7 +22,7 @@ def scene(request):
     """Sunny traversal (shadow rays walk the roadside too); the test city has a curved arch tunnel."""
     city = load_city(request.param)
     traj = next(t for t in (city.traversal(i, 40, fps=15.0, seed=0) for i in range(8)) if not t.conditions.overcast)
-    return city, traj, Renderer(city, 96, 72, 70.0, conditions=traj.conditions)
+    return city, traj, Renderer(city, RenderConfig(width=96, height=72, hfov_deg=70.0), conditions=traj.conditions)
 
 
 def _render(r, pose, cull):
@@ -104,3 +104,34 @@ def test_texture_wrap_mask_equals_modulo():
             out = np.zeros(3)
             rc._bilinear(texels, 5, n, x, y, out, 1.0)
             np.testing.assert_array_equal(out, _bilinear_modulo(tile.astype(np.float64), x, y))
+
+
+@pytest.mark.parametrize("exposure_us", [75.0, 300.0, 2000.0, 20000.0])
+def test_still_frames_skip_the_smear_with_the_same_result(scene, exposure_us):
+    """_smear skips the taps when no flow component reaches 0.5 px (_flow_reaches): the decision equals the one
+    from _blur_kernel's own maximum, and render_exposure returns what the always-smear code returned."""
+    from expoctl.world.renderer import _blur_kernel, _flow_reaches
+
+    _, traj, r = scene
+    decisions = set()
+    for k in (2, 6, 12):
+        r._cache.clear()
+        got = r.render_exposure(traj, k, exposure_us)
+        sharp = next(iter(r._cache.values()))
+        t0 = float(traj.timestamps_ns[k]) * 1e-9
+        pa, pb = traj.pose_at(t0), traj.pose_at(t0 + exposure_us * 1e-6)
+        K = r.K
+        args = (sharp["depth"], K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.ascontiguousarray(sharp["pose"]),
+                np.ascontiguousarray(pa), np.ascontiguousarray(pb))
+        out = np.empty_like(sharp["luminance"])
+        max_shift = _blur_kernel(np.ascontiguousarray(sharp["luminance"]), *args, out)  # the always-smear path
+        assert _flow_reaches(*args, 0.5) == (max_shift >= 0.5)
+        for limit in (0.5 * max_shift, max_shift, np.nextafter(max_shift, np.inf)):
+            assert _flow_reaches(*args, limit) == (max_shift >= limit)
+        expected = r.apply_glare(out if max_shift >= 0.5 else sharp["luminance"])
+        np.testing.assert_array_equal(got, expected)
+        decisions.add(bool(max_shift >= 0.5))
+    if exposure_us >= 20000.0:
+        assert decisions == {True}  # a moving frame at this exposure: the smear runs
+    if exposure_us == 75.0:
+        assert decisions == {False}  # and at the shortest exposure it is skipped

@@ -3,7 +3,7 @@
 Public API:
 - load_city(name_or_dict, city_dir=None) -> City      ('train', 'validation', 'test' or a config dict)
 - City.traversal(index, n_frames=None, fps=15.0, seed=0) -> Trajectory
-- Renderer(city, width, height, hfov_deg, ...).render(pose) -> (luminance_cd_m2 HxWx3, depth_m HxW)
+- Renderer(city, RenderConfig(width=…, hfov_deg=…, …), conditions).render(pose) -> (luminance_cd_m2 HxWx3, depth_m HxW)
 - Renderer.render_exposure(trajectory, frame_index, exposure_us, camera_offset_m=0.0) -> luminance_cd_m2
 - intrinsics(width, height, hfov_deg) -> 3x3 K
 - load_world_city(world_cfg, split) -> City; validate_world_config(world_cfg); make_renderer(city, render_cfg)

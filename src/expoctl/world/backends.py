@@ -17,4 +17,4 @@ def make_renderer(city: City, render: RenderConfig | dict, conditions: Condition
     if not isinstance(render, RenderConfig):
         render = RenderConfig.from_dict(render)
     cls = GLRenderer if render.backend == "egl" else Renderer
-    return cls(city, conditions=conditions, **render.renderer_options())
+    return cls(city, render, conditions=conditions)

@@ -33,6 +33,7 @@ from expoctl.errors import ConfigError
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world import daylight, shade
+from expoctl.world.render_config import RenderConfig
 from expoctl.world.renderer import Renderer
 
 _SHADERS = Path(__file__).with_name("shaders")
@@ -165,8 +166,11 @@ def shader_segments(seg: np.ndarray, texel_m: float, tile_px: int) -> np.ndarray
 class GLRenderer(Renderer):
     """Renderer whose render_full and fast motion blur run as GLSL shaders (see module docstring); same outputs."""
 
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
+    def __init__(self, city, render: RenderConfig | None = None, conditions=None):
+        if render is not None and render.portal_daylight != "exact":  # the shader integrates per pixel
+            raise ConfigError("world.render.portal_daylight",
+                              f"{render.portal_daylight!r} needs backend numba; the egl shader has only 'exact'")
+        super().__init__(city, render, conditions)
         if len(set(self.sizes[:, 0].tolist())) != 1:
             raise ValueError("all material tiles must have the same size (one tile length per route cell)")
         self._seg64 = shader_segments(self.seg, float(self._base_lp[rc.LP_TEXEL_M]), int(self.sizes[0, 0]))

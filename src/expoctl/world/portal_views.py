@@ -80,7 +80,7 @@ def render_y(renderer, pose, size_px, fov_deg, lp, lamp_mult, portal_lum) -> tup
     code = np.empty((size_px, size_px), np.uint8)
     mat = np.empty((size_px, size_px), np.uint8)
     render_kernel(renderer.seg, lp, renderer.texels, renderer.offs, renderer.sizes, renderer.scales,
-                  renderer.albedo, lamp_mult, renderer._lamp_count, portal_lum, renderer.hdri,
+                  renderer.albedo, lamp_mult, renderer._lamp_count, portal_lum, renderer.light_map, renderer.hdri,
                   np.ascontiguousarray(pose[:3, 3]), np.ascontiguousarray(pose[:3, :3]), K[0, 0], K[1, 1], K[0, 2],
                   K[1, 2], i0, inside, lum, depth, code, mat, renderer.cull)
     return lum.astype(np.float64) @ _Y, K

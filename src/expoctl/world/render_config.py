@@ -23,6 +23,9 @@ HFOV_DEG_ABOVE, HFOV_DEG_BELOW = 0.0, 180.0
 # OpenGL 4.5 context (gl_renderer.GLRenderer; moderngl, e.g. Mesa llvmpipe)
 BACKENDS = ("numba", "egl")
 BLURS = ("fast", "reference")
+# exact: the portals' configuration factors integrated per pixel (daylight.opening_factors_inline); light_map: read
+# from a per-tunnel table of the same integral (daylight.light_map; opt-in, its registered bound: docs/simulator.md)
+PORTAL_DAYLIGHT = ("exact", "light_map")
 
 
 def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
@@ -51,6 +54,7 @@ class RenderConfig:
     max_subframes: int = 48  # reference blur: cap on sub-frame renders per exposure
     share_render: bool = False
     backend: str = "numba"
+    portal_daylight: str = "exact"
 
     @classmethod
     def from_dict(cls, d: Any, key: str = "world.render", problems: Problems | None = None) -> "RenderConfig":
@@ -69,6 +73,7 @@ class RenderConfig:
             max_subframes=r.integer("max_subframes", cls.max_subframes, min=1),
             share_render=r.boolean("share_render", cls.share_render),
             backend=r.choice("backend", BACKENDS, cls.backend),
+            portal_daylight=r.choice("portal_daylight", PORTAL_DAYLIGHT, cls.portal_daylight),
         )
         r.done()
         return cfg
@@ -83,8 +88,7 @@ class RenderConfig:
         """The same renderer at another image size (None keeps this one's)."""
         return replace(self, width=width or self.width, height=height or self.height)
 
-    def renderer_options(self) -> dict:
-        """Keyword arguments of `Renderer` (every key but the backend)."""
-        out = asdict(self)
-        del out["backend"]
-        return out
+    def validated(self, key: str = "world.render") -> "RenderConfig":
+        """This config after the checks of a config read (a directly constructed one skips them): the same bounds,
+        defined once in `from_dict` (ConfigError world.render.<key>)."""
+        return type(self).from_dict(asdict(self), key)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from expoctl.world import clear_sky, portal_views
+from expoctl.world import clear_sky, daylight, portal_views
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world.city import SUN_DISK_SOLID_ANGLE_SR, City, Conditions, Trajectory
@@ -33,26 +33,24 @@ def _rgb_norm(rgb):
 
 
 class Renderer:
-    """Render a city from camera poses.
+    """Render a city from camera poses, with the options of `world.render` (`RenderConfig`, the one definition of
+    their defaults and bounds; its `backend` key is make_renderer's choice of class).
 
     width, height: pixels; hfov_deg: horizontal field of view; glare_fraction: share of image luminance scattered
     by the lens into a wide halo (veiling glare, 0.1–1 %); mip_bias: texture footprint multiplier (>1 blurs more,
     <1 sharper but aliasing); blur: 'fast' or 'reference'; share_render: in the fast path, one sharp render per
     frame serves both cameras and all exposures (warped by depth-based flow): about half the cost of a stereo
-    rig, but the resampling softens the warped camera relative to the rendered one, so it is off by default.
+    rig, but the resampling softens the warped camera relative to the rendered one, so it is off by default;
+    portal_daylight: 'exact' or 'light_map' (the portals' configuration factors from a per-tunnel table; opt-in).
     """
 
-    def __init__(self, city: City, width: int = 640, height: int = 480, hfov_deg: float = 70.0,
-                 glare_fraction: float = 0.005, mip_bias: float = 1.0, tmax_m: float = 400.0, blur: str = "fast",
-                 max_subframes: int = 48, share_render: bool = False, conditions: Conditions | None = None):
-        # the bounds of every option are `world.render`'s, defined once (ConfigError world.render.<key>)
-        RenderConfig.from_dict(dict(width=width, height=height, hfov_deg=hfov_deg, glare_fraction=glare_fraction,
-                                    mip_bias=mip_bias, tmax_m=tmax_m, blur=blur, max_subframes=max_subframes,
-                                    share_render=share_render))
-        self.K = intrinsics(width, height, hfov_deg)
-        self.city, self.width, self.height, self.hfov_deg = city, int(width), int(height), float(hfov_deg)
-        self.glare_fraction, self.blur, self.max_subframes = float(glare_fraction), blur, max_subframes
-        self.share_render = bool(share_render)
+    def __init__(self, city: City, render: RenderConfig | None = None, conditions: Conditions | None = None):
+        render = (RenderConfig() if render is None else render).validated()
+        self.config = render  # (not `render`: that is the method)
+        self.K = intrinsics(render.width, render.height, render.hfov_deg)
+        self.city, self.width, self.height, self.hfov_deg = city, render.width, render.height, float(render.hfov_deg)
+        self.glare_fraction, self.blur, self.max_subframes = float(render.glare_fraction), render.blur, render.max_subframes
+        self.share_render = bool(render.share_render)
         self.n_sharp_renders = 0  # sharp renders of the fast blur path (the cost render sharing saves)
         self.seg = np.ascontiguousarray(city.segments)
         self.texels, self.offs, self.sizes, self.scales = city.texture_atlas()
@@ -60,8 +58,11 @@ class Renderer:
             raise ValueError("texture mip level sizes must be powers of two (textures.tile_px)")
         cfg = city.cfg
         self.albedo = np.array([float(cfg["albedo"][m]) for m in MATERIALS])
-        self._base_lp = self._static_lighting(cfg, mip_bias, tmax_m)
+        self._base_lp = self._static_lighting(cfg, render.mip_bias, render.tmax_m)
         self._lamp_count, self._e_nom = self._lamp_layout(cfg)
+        # per-tunnel table of the portal configuration factors (daylight.light_map), or an empty one: exact per pixel
+        self.light_map = (daylight.light_map(self.seg, len(self._lamp_count)) if render.portal_daylight == "light_map"
+                          else daylight.NO_LIGHT_MAP)
         self._cache: dict = {}
         self._lighting_cache: dict = {}  # conditions → (portal luminances, L20 per tunnel): see _portal_lighting
         # reach test before each roadside block/prop intersection (same image; False = exact test for every one,
@@ -213,7 +214,8 @@ class Renderer:
         mat = np.empty((self.height, self.width), np.uint8)
         K = self.K
         render_kernel(self.seg, self.lp, self.texels, self.offs, self.sizes, self.scales, self.albedo,
-                      self.lamp_mult, self._lamp_count, self.portal_lum, self.hdri, np.ascontiguousarray(pose[:3, 3]),
+                      self.lamp_mult, self._lamp_count, self.portal_lum, self.light_map, self.hdri,
+                      np.ascontiguousarray(pose[:3, 3]),
                       np.ascontiguousarray(pose[:3, :3]), K[0, 0], K[1, 1], K[0, 2], K[1, 2], i0, inside,
                       lum, depth, code, mat, self.cull)
         if glare:
@@ -286,12 +288,18 @@ class Renderer:
         return self.apply_glare(out)
 
     def _smear(self, sharp: dict, pose_a: np.ndarray, pose_b: np.ndarray) -> tuple[np.ndarray, float]:
-        """(luminance smeared along the flow to poses a and b, largest flow component in px); see _blur_kernel."""
-        out = np.empty_like(sharp["luminance"])
+        """(luminance smeared along the flow to poses a and b, largest flow component in px); see _blur_kernel.
+        When no flow component reaches 0.5 px the caller discards the smear, so it is not computed: (the sharp
+        luminance, 0.0). _flow_reaches decides that from the same flows, searched from the bottom row up, where the
+        near road moves most, and stops at the first that reaches 0.5 px: a moving frame costs a few rows of flows
+        more, a still one (short exposures) the flows without the taps."""
         K = self.K
-        max_shift = _blur_kernel(np.ascontiguousarray(sharp["luminance"]), sharp["depth"], K[0, 0], K[1, 1], K[0, 2],
-                                 K[1, 2], np.ascontiguousarray(sharp["pose"]), np.ascontiguousarray(pose_a),
-                                 np.ascontiguousarray(pose_b), out)
+        args = (sharp["depth"], K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.ascontiguousarray(sharp["pose"]),
+                np.ascontiguousarray(pose_a), np.ascontiguousarray(pose_b))
+        if not _flow_reaches(*args, 0.5):
+            return sharp["luminance"], 0.0
+        out = np.empty_like(sharp["luminance"])
+        max_shift = _blur_kernel(np.ascontiguousarray(sharp["luminance"]), *args, out)
         return out, max_shift
 
     def _flow(self, depth, pose_ref, pose_a, pose_b):
@@ -334,6 +342,48 @@ def _project(pose, x, y, z, fx, fy, cx, cy):
     return fx * qx / qz + cx, fy * qy / qz + cy
 
 
+@njit(cache=True, inline="always")
+def _pixel_flows(depth, col, row, x, y, fx, fy, cx, cy, pose_ref, pose_a, pose_b):
+    """Flow (fax, fay, fbx, fby) of pixel (x, y) from the reference render to poses a and b (_blur_kernel's)."""
+    z = depth[y, x]
+    if not z < 1e5:
+        z = 1e5
+    px = col[x] * z
+    py = row[y] * z
+    wx = pose_ref[0, 0] * px + pose_ref[0, 1] * py + pose_ref[0, 2] * z + pose_ref[0, 3]
+    wy = pose_ref[1, 0] * px + pose_ref[1, 1] * py + pose_ref[1, 2] * z + pose_ref[1, 3]
+    wz = pose_ref[2, 0] * px + pose_ref[2, 1] * py + pose_ref[2, 2] * z + pose_ref[2, 3]
+    ax, ay = _project(pose_a, wx, wy, wz, fx, fy, cx, cy)
+    bx, by = _project(pose_b, wx, wy, wz, fx, fy, cx, cy)
+    return ax - (x + 0.5), ay - (y + 0.5), bx - (x + 0.5), by - (y + 0.5)
+
+
+@njit(cache=True, inline="always")
+def _flow_factors(w, h, fx, fy, cx, cy):
+    """Per column / row factors of the back-projection: the same divisions as per pixel, done once."""
+    col = np.empty(w)
+    for x in range(w):
+        col[x] = (x + 0.5 - cx) / fx
+    row = np.empty(h)
+    for y in range(h):
+        row[y] = (y + 0.5 - cy) / fy
+    return col, row
+
+
+@njit(cache=True)
+def _flow_reaches(depth, fx, fy, cx, cy, pose_ref, pose_a, pose_b, limit):
+    """Whether any flow component of _blur_kernel reaches `limit` px (its returned maximum ≥ limit), rows from the
+    bottom up (one thread: a moving frame stops within the first rows)."""
+    h, w = depth.shape
+    col, row = _flow_factors(w, h, fx, fy, cx, cy)
+    for y in range(h - 1, -1, -1):
+        for x in range(w):
+            fax, fay, fbx, fby = _pixel_flows(depth, col, row, x, y, fx, fy, cx, cy, pose_ref, pose_a, pose_b)
+            if max(abs(fax), abs(fay), abs(fbx), abs(fby)) >= limit:
+                return True
+    return False
+
+
 @njit(cache=True, parallel=True)
 def _blur_kernel(img, depth, fx, fy, cx, cy, pose_ref, pose_a, pose_b, out):
     """Exposure average by smearing: pixel x at time τ ∈ [start, end] sees the rendered point that sat at
@@ -345,12 +395,7 @@ def _blur_kernel(img, depth, fx, fy, cx, cy, pose_ref, pose_a, pose_b, out):
     stride = rc.spread_stride(h)
     # per column / row factors of the back-projection and the tap positions along the blur line: the same divisions
     # as per pixel / per tap before, done once (bit-identical)
-    col = np.empty(w)
-    for x in range(w):
-        col[x] = (x + 0.5 - cx) / fx
-    row = np.empty(h)
-    for y in range(h):
-        row[y] = (y + 0.5 - cy) / fy
+    col, row = _flow_factors(w, h, fx, fy, cx, cy)
     frac = np.empty((65, 64))
     for n in range(1, 65):
         for k in range(n):
@@ -360,18 +405,7 @@ def _blur_kernel(img, depth, fx, fy, cx, cy, pose_ref, pose_a, pose_b, out):
         y = (ky * stride) % h  # blur lengths grow toward the bottom rows: spread each thread's rows (spread_stride)
         m = 0.0
         for x in range(w):
-            z = depth[y, x]
-            if not z < 1e5:
-                z = 1e5
-            px = col[x] * z
-            py = row[y] * z
-            wx = pose_ref[0, 0] * px + pose_ref[0, 1] * py + pose_ref[0, 2] * z + pose_ref[0, 3]
-            wy = pose_ref[1, 0] * px + pose_ref[1, 1] * py + pose_ref[1, 2] * z + pose_ref[1, 3]
-            wz = pose_ref[2, 0] * px + pose_ref[2, 1] * py + pose_ref[2, 2] * z + pose_ref[2, 3]
-            ax, ay = _project(pose_a, wx, wy, wz, fx, fy, cx, cy)
-            bx, by = _project(pose_b, wx, wy, wz, fx, fy, cx, cy)
-            fax, fay = ax - (x + 0.5), ay - (y + 0.5)
-            fbx, fby = bx - (x + 0.5), by - (y + 0.5)
+            fax, fay, fbx, fby = _pixel_flows(depth, col, row, x, y, fx, fy, cx, cy, pose_ref, pose_a, pose_b)
             m = max(m, abs(fax), abs(fay), abs(fbx), abs(fby))
             length = math.sqrt((fbx - fax) ** 2 + (fby - fay) ** 2)
             n = min(64, int(math.ceil(2.0 * length)) + 1) if length >= 0.5 else 1

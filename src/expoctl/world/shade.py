@@ -10,7 +10,7 @@ from numba import njit, prange
 from expoctl.world import raycast as rc
 from expoctl.world import route as rt
 from expoctl.world.clear_sky import general_sky_inline
-from expoctl.world.daylight import opening_factors_inline
+from expoctl.world.daylight import LM_CEIL, LM_ROAD, LM_WALL, light_map_factors, opening_factors_inline
 
 MAT_SKY, MAT_LAMP = 255, 254
 
@@ -117,12 +117,14 @@ _box_cover = rc.box_cover
 # inlined into the parallel pixel loop: a call passed ~110 scalars (every array as ~9) per pixel; inlining it and
 # its helpers made the whole kernel ~1.3× faster (measured, 320×240, one thread)
 @njit(cache=True, inline="always")
-def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, portal_lum, hdri,
+def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, portal_lum, light_map, hdri,
                 ox, oy, oz, dx, dy, dz, pix_rad, start_seg, start_inside, out, tex, cull):
     """Luminance of one ray into out[0:3]; returns (t, code, material).
     seg: a raycast.with_frame_terms table for the camera position (ox, oy, oz) and the sun direction (lp[0:3]).
     portal_lum: (n_tunnels, 2, 2) mean luminance (cd/m², Y) seen out of each tunnel's start and end openings, looking
-    up and looking down (portal_views.portal_luminances)."""
+    up and looking down (portal_views.portal_luminances).
+    light_map: daylight.light_map's per-tunnel table of the portals' configuration factors (opt-in), or
+    daylight.NO_LIGHT_MAP (no rows): the exact integral per pixel."""
     t, code, j, air, air_in, u, v, w, nu, nv, nw, mat = rc.trace(
         seg, start_seg, start_inside, ox, oy, oz, dx, dy, dz, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
         True, False)
@@ -197,8 +199,14 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
         if lp[rc.LP_DAYLIGHT_MODEL] > 0.5:
             # diffuse daylight through both openings (the sun's own patch is the shadow ray's, above): the parts
             # above and below the point's height each with the luminance seen out of the portal upward / downward
-            f0, f1, g0, g1 = opening_factors_inline(seg[j, rt.HW], seg[j, rt.WALL_H], seg[j, rt.CROWN_H],
-                                                    seg[j, rt.ARC_C], seg[j, rt.ARC_R], x, tl - x, v, w, nv, nw)
+            if light_map.shape[0] > 0:
+                surf = LM_ROAD if code == rc.GROUND else (LM_WALL if code == rc.TWALL else LM_CEIL)
+                f0, f1, g0, g1 = light_map_factors(light_map[tid], surf, seg[j, rt.HW], seg[j, rt.WALL_H],
+                                                   seg[j, rt.CROWN_H], seg[j, rt.ARC_C], seg[j, rt.ARC_R], tl, x, v,
+                                                   w, nv, nw)
+            else:
+                f0, f1, g0, g1 = opening_factors_inline(seg[j, rt.HW], seg[j, rt.WALL_H], seg[j, rt.CROWN_H],
+                                                        seg[j, rt.ARC_C], seg[j, rt.ARC_R], x, tl - x, v, w, nv, nw)
             e_day += math.pi * ((f0 - g0) * portal_lum[tid, 0, 0] + g0 * portal_lum[tid, 0, 1]
                                 + (f1 - g1) * portal_lum[tid, 1, 0] + g1 * portal_lum[tid, 1, 1])
         else:
@@ -236,7 +244,7 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
 
 
 @njit(cache=True, parallel=True)
-def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, portal_lum, hdri,
+def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count, portal_lum, light_map, hdri,
                   cam, rot, fx, fy, cx, cy, start_seg, start_inside, out_l, out_depth, out_code, out_mat, cull):
     """Render every pixel. rot: camera-to-world rotation (columns = camera x right, y down, z forward).
     cull: cheap reach test before each block/prop intersection (raycast.trace); False = exact test for all."""
@@ -258,7 +266,7 @@ def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_
             dz = (rot[2, 0] * cxr + rot[2, 1] * cyr + rot[2, 2]) * nrm
             # a pixel's angular size shrinks off-axis (cos² radially, cos tangentially): use cos^1.5 ≈ nrm·sqrt(nrm)
             t, code, mat = shade_pixel(segf, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_count,
-                                       portal_lum, hdri,
+                                       portal_lum, light_map, hdri,
                                        cam[0], cam[1], cam[2], dx, dy, dz, pix_rad * nrm * math.sqrt(nrm), start_seg,
                                        start_inside, px, tex, cull)
             out_l[yy, xx, 0] = px[0]
