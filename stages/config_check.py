@@ -14,19 +14,16 @@ from pathlib import Path
 from typing import Any
 
 from expoctl.config_reader import Problems, Section
-from expoctl.controllers.learned import read_learned_params
-from expoctl.controllers.registry import CONTROLLERS, make_controller
+from expoctl.controllers.registry import CONTROLLERS
 from expoctl.evaluation.inputs import EvaluationInputs
-from expoctl.features.orb import OrbParams
-from expoctl.features.viso.params import parse_params as viso_params
+from expoctl.features.registry import FRONTENDS
 from expoctl.labels.samples import SampleConfig
 from expoctl.labels.targets import LabelConfig
 from expoctl.parallel import ParallelConfig
 from expoctl.raw.ingest import IngestConfig
 from expoctl.report.results import ReportConfig
 from expoctl.selection.model_selection import SelectConfig
-from expoctl.sim.collect import CollectConfig, CollectInputs, plan_sequences
-from expoctl.sim.oracle import OracleParams
+from expoctl.sim.collect import CollectConfig, CollectInputs, plan_sequences, reference_controller_config
 from expoctl.world.cities import deep_merge, resolve_city_name
 from stages.collect import REFERENCE_GATES
 from stages.keys import LAST_ITERATION
@@ -57,13 +54,11 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
     problems.collect(train_configs, cfg)  # model, train, seed: as the train stage builds them
     ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems)  # where jobs run (as collect reads it)
     select = SelectConfig.from_dict(top.value("select_model", None), "select_model", problems)
-    evaluation = EvaluationInputs.from_resolved(cfg, problems)  # evaluate, features, world, rig, sensor, controllers
-    problems.collect(OrbParams.from_dict, evaluation.features.orb)  # evaluate runs both front ends, whatever
-    problems.collect(viso_params, evaluation.features.viso)  # features.frontends says
-    _check_controllers(evaluation.controllers, problems)
+    # evaluate, features (every front end's typed config), world, rig, sensor, every controllers.<name> section
+    evaluation = EvaluationInputs.from_resolved(cfg, problems)
+    _check_plugins(problems)
     _check_cities(evaluation, select, project_root, problems)
     if collect is not None:
-        _check_collect(collect.collect, "collect", problems)
         problems.collect(plan_sequences, collect, project_root)  # each split with sequences has a valid city
     paths = top.section("paths", required=True)
     for name in PATH_KEYS:
@@ -78,32 +73,19 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
     problems.raise_if_any()
 
 
-def _check_controllers(controllers: dict[str, dict], problems: Problems) -> None:
-    """Each `controllers.<name>` through its own factory's checks; the learned one without its checkpoint and the
-    oracle without a scene (both exist only at run time)."""
-    for name, params in controllers.items():
-        if name == "learned":
-            read_learned_params(params, problems)
-        elif name == "oracle":
-            problems.collect(OracleParams.from_dict, params)
-        elif name in CONTROLLERS:
-            problems.collect(make_controller, name, params)
-        else:
-            problems.add(f"controllers.{name}", f"unknown controller (known: {', '.join(sorted(CONTROLLERS))}, "
-                         "oracle)")
+def _check_plugins(problems: Problems) -> None:
+    """Every installed plugin that failed to load, named with its package: a user who installed one expects it in
+    the run, so its absence stops compose rather than leaving it out unnoticed."""
+    for registry in (CONTROLLERS, FRONTENDS):
+        for name, (package, problem) in registry.broken().items():
+            problems.add(f"{registry.config_key}.{name}", f"{registry.kind} plugin {name!r} (package {package}) is "
+                                                          f"broken: {problem}")
 
 
-def _check_collect(ccfg: CollectConfig, key: str, problems: Problems) -> None:
-    """What CollectConfig leaves to the collect run: the reference controller must be one the registry builds."""
-    # the oracle registers itself once the simulator is imported, but it needs the scene, which collect does not
-    # hand a reference controller: list the same names whatever has been imported
-    buildable = sorted(name for name in CONTROLLERS if name != "oracle")
-    if ccfg.reference_controller == "oracle":
-        problems.add(f"{key}.reference_controller", "the oracle cannot drive collect (it renders candidate frames "
-                     f"from the simulator's scene, which only evaluate gives it); use one of: {', '.join(buildable)}")
-    elif ccfg.reference_controller is not None and ccfg.reference_controller not in CONTROLLERS:
-        problems.add(f"{key}.reference_controller", f"unknown controller {ccfg.reference_controller!r} "
-                     f"(known: {', '.join(buildable)})")
+def _check_collect(cfg: dict, ccfg: CollectConfig, key: str, problems: Problems) -> None:
+    """The reference controller of a merged collect block is one the registry builds from its section alone."""
+    controllers = Section(cfg.get("controllers"), "controllers", problems)
+    reference_controller_config(controllers, ccfg.reference_controller, f"{key}.reference_controller")
 
 
 def _check_cities(evaluation: EvaluationInputs, select: SelectConfig, project_root: Path, problems: Problems) -> None:
@@ -144,7 +126,7 @@ def _check_iteration(cfg: dict, n: int, top: Section, collect: CollectInputs | N
     key = f"iteration{n}.collect"
     own = Problems()
     ccfg = CollectConfig.from_dict(deep_merge(base, override or {}), key, own)
-    _check_collect(ccfg, key, own)
+    _check_collect(cfg, ccfg, key, own)
     # a problem of the base `collect` is already reported under `collect`: only the block's own ones count
     inherited = set(problems.items)
     problems.items += [(k, p) for k, p in own.items if ("collect" + k[len(key):], p) not in inherited]

@@ -53,8 +53,9 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     log_child_runs(result, tracker)
     for split, ctrls in result.metrics.items():
         for ctrl, e in ctrls.items():
-            d, t = e["dynamic"]["orb"], e["tracking_success"]
-            log.info("%-10s %-15s dynamic ORB median %s min %s; VO %d/%d", split, ctrl, _fmt(d["median_nfm"]),
+            fe = inputs.evaluate.frontends[0]
+            d, t = e["dynamic"][fe], e["tracking_success"]
+            log.info("%-10s %-15s dynamic %s median %s min %s; VO %d/%d", split, ctrl, fe, _fmt(d["median_nfm"]),
                      _fmt(d["min_nfm"]), t[0], t[1])
     log.info("%d runs, %d frames in %.0f s → %s", len(runs), len(result.frames), seconds, out["metrics"])
 
@@ -69,7 +70,7 @@ def check_network(inputs: EvaluationInputs, root: Path) -> None:
     if not path.is_file():
         raise InputError(f"{path}: trained model missing — the 'learned' controller cannot run; run the train and "
                          "select_model stages first (or drop 'learned' from evaluate.controllers)")
-    check_checkpoint(path, onnx=inputs.controller_params("learned").get("backend", "torch") == "onnx")
+    check_checkpoint(path, onnx=inputs.controller_config("learned").backend == "onnx")
 
 
 def _fmt(v) -> str:

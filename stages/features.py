@@ -10,7 +10,6 @@ from pathlib import Path
 import pandas as pd
 
 from expoctl.errors import InputError
-from expoctl.features.orb import OrbParams
 from expoctl.features.pipeline import FeaturesConfig, compute_features
 from expoctl.io import write_parquet
 from expoctl.parallel import ParallelConfig
@@ -33,8 +32,8 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
         raise InputError(f"{frames_path}: not a readable Parquet file ({exc})") from None
 
     effective = {"frontends": list(fcfg.frontends), "n_jobs": fcfg.n_jobs}
-    if "orb" in fcfg.frontends:
-        effective["orb"] = dataclasses.asdict(OrbParams.from_dict(fcfg.orb))  # with defaults filled in
+    for name in fcfg.frontends:  # each front end's typed config, defaults filled in
+        effective[name] = dataclasses.asdict(fcfg.config(name))
     tracker.log_params({"effective": effective})
 
     t0 = time.perf_counter()

@@ -154,8 +154,8 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     tracker.log_artifact(out)
     for s in scores:
         d = s["dynamic_min_nfm"]
-        log.info("%-11s VO %d/%d, dynamic min NFM ORB %s viso %s, score %.3f, %s EV from %s, clipped %.0f %%",
-                 s["name"], s["vo_ok"], s["vo_runs"], _fmt(d["orb"]), _fmt(d["viso"]), s["score"],
+        log.info("%-11s VO %d/%d, dynamic min NFM %s, score %.3f, %s EV from %s, clipped %.0f %%",
+                 s["name"], s["vo_ok"], s["vo_runs"], ", ".join(f"{fe} {_fmt(v)}" for fe, v in d.items()), s["score"],
                  _fmt(s.get("median_offset_ev"), "+.2f"), scfg.reference, 100 * (s["median_saturated_frac"] or 0))
     log.info("final model: %s → %s (%s)", chosen.name, final, rule)
 

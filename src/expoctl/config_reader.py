@@ -16,7 +16,10 @@ Bounds are named: `min`/`max` are inclusive, `above`/`below` exclusive; the mess
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import types
+import typing
 from collections.abc import Callable, Mapping, Sequence
 from numbers import Real
 from typing import Any
@@ -239,6 +242,10 @@ class Section:
         return Section(v if given else ({} if not required else None), self.path(name), self.problems,
                        required=False)
 
+    def read(self, cls: type) -> Any:
+        """This section's keys as an instance of the typed config dataclass `cls` (`read_config`)."""
+        return _read_dataclass(self, cls)
+
     # ---------------------------------------------------------------------------------------------------- end
 
     def done(self, known: Sequence[str] | None = None) -> None:
@@ -275,3 +282,111 @@ def read_seed(top: Section) -> int:
     """The run's base seed: key `seed` at the resolved config's top level (`Section(cfg, "")`), default 0. Every
     stage that seeds anything (collect, train, evaluate, select_model) reads it here."""
     return top.integer("seed", 0, min=0)
+
+
+# --------------------------------------------------------------------------------------- typed config dataclasses
+
+
+def param(default: Any = REQUIRED, *, min: Real | None = None, max: Real | None = None, above: Real | None = None,
+          below: Real | None = None, unit: str = "", choices: Sequence | None = None, length: int | None = None,
+          empty: bool = False) -> Any:
+    """A field of a typed config dataclass with the bounds its reader checks (`read_config`): `min`/`max` inclusive,
+    `above`/`below` exclusive, `choices` for a string, `length` (and `empty`) for a tuple of numbers."""
+    meta = {"min": min, "max": max, "above": above, "below": below, "unit": unit, "choices": choices,
+            "length": length, "empty": empty}
+    if default is REQUIRED:
+        return dataclasses.field(metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def read_config(cls: type, d: Any, key: str, problems: Problems | None = None) -> Any:
+    """The one reader of a config section into its frozen dataclass `cls`: every field read with the type its
+    annotation gives and the bounds of its `param(...)`, unknown keys refused, then the dataclass's own cross-key
+    `check(section)`. Every problem carries its full key path (`controllers.agae.damping`); without `problems`, they
+    are raised together as one ConfigError, else added there for the caller to raise."""
+    r = Section(d, key, problems)
+    value = r.read(cls)
+    r.done()
+    return value
+
+
+def _read_field(r: Section, name: str, hint: Any, default: Any, meta: Mapping) -> Any:
+    """One dataclass field from section `r`, dispatched on its type annotation."""
+    nullable = False
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType) and type(None) in args:
+        nullable = True
+        rest = [a for a in args if a is not type(None)]
+        hint = rest[0] if len(rest) == 1 else Any
+        origin, args = typing.get_origin(hint), typing.get_args(hint)
+    bounds = {k: meta.get(k) for k in ("min", "max", "above", "below")}
+    unit = meta.get("unit") or ""
+    if nullable and r.has(name) and r.mapping[name] is None:
+        r._read.add(name)
+        return None
+    if hint is bool:
+        return r.boolean(name, default)
+    if hint is int:
+        return r.integer(name, default, unit=unit, nullable=nullable, **bounds)
+    if hint is float:
+        return r.number(name, default, unit=unit, nullable=nullable, **bounds)
+    if hint is str:
+        if meta.get("choices"):
+            return r.choice(name, tuple(meta["choices"]), default)
+        return r.text(name, default, nullable=nullable)
+    if origin is tuple and args and args[0] in (float, int):
+        value = r.numbers(name, default, unit=unit, empty=bool(meta.get("empty")), **bounds)
+        length = meta.get("length")
+        if value is not None and value is not default and length is not None and len(value) != length:
+            return r._bad(name, f"a list of {length} numbers", r.mapping[name], default)
+        if value is not None and value is not default and args[0] is int:
+            if not all(float(v).is_integer() for v in value):
+                return r._bad(name, "a list of integers", r.mapping[name], default)
+            value = tuple(int(v) for v in value)
+        return value
+    if dataclasses.is_dataclass(hint):
+        sub = r.section(name)
+        value = sub.read(hint)
+        sub.done()
+        return value
+    return r.value(name, default)  # Any / Mapping: checked by the dataclass's own `check`
+
+
+def _read_dataclass(self: Section, cls: type) -> Any:
+    """This section's keys as an instance of the frozen dataclass `cls` (see `read_config`); the caller calls
+    `done()`. A dataclass may define `check(self, section)` for rules between keys; it runs only when every key
+    read well (a bad key reads as its default, which would only add confusing follow-on problems). One whose keys
+    need more than types and bounds reads them itself in a classmethod `from_section(section)` (same contract)."""
+    custom = getattr(cls, "from_section", None)
+    if callable(custom):  # a config whose keys need more than a type and bounds (e.g. libviso2's 0/1 switches)
+        return custom(self)
+    hints = typing.get_type_hints(cls)
+    before = len(self.problems)
+    values = {}
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            default = REQUIRED
+        values[f.name] = _read_field(self, f.name, hints[f.name], default, f.metadata)
+    if len(self.problems) > before:
+        # a required key that is missing or bad has no value to build with: the defaults stand in
+        values = {k: v for k, v in values.items() if v is not None or _nullable(hints[k])}
+        try:
+            return cls(**values)
+        except TypeError:
+            return None
+    value = cls(**values)
+    check = getattr(value, "check", None)
+    if callable(check):
+        check(self)
+    return value
+
+
+def _nullable(hint: Any) -> bool:
+    return typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in typing.get_args(hint)
+

@@ -187,30 +187,38 @@ def test_live_rig_retriggers_a_mispaired_frame_then_gives_up_naming_both_cameras
                        perturbation=PerturbationConfig(), limit=rig.limit))
 
 
-def test_controller_params_for_a_camera(tmp_path):
-    from expoctl.cameras.session import controller_params, make_camera_controller
+def test_controller_config_for_a_camera(tmp_path):
+    from expoctl.cameras.session import camera_controller_names, controller_config, make_camera_controller
+    from expoctl.controllers.agae import AgAeConfig
     from expoctl.errors import InputError
 
+    # every registered controller but the oracle (it needs the simulator's scene) can drive a camera
+    assert camera_controller_names() == ("agae", "shin", "shim", "mean_intensity", "fixed", "learned")
     lim = Limits(Range(0.0, 12.0), Range(75.0, 20000.0))
-    agae = controller_params("agae", lim)
-    assert agae == {"exposure_lower_us": 75.0, "exposure_upper_us": 20000.0, "gain_lower_db": 0.0, "gain_upper_db": 12.0}
-    for name in ("agae", "fixed"):  # the library's controllers accept what is built for them
-        ctrl = make_camera_controller(name, controller_params(name, lim))
+    agae = controller_config("agae", lim)
+    assert agae == AgAeConfig(exposure_lower_us=75.0, exposure_upper_us=20000.0, gain_lower_db=0.0, gain_upper_db=12.0)
+    assert controller_config("fixed", lim).agae == agae  # its warm-up AG+AE gets the camera's range too
+    for name in ("agae", "fixed", "mean_intensity"):  # the library's controllers accept what is built for them
+        ctrl = make_camera_controller(name, controller_config(name, lim))
         ctrl.reset(Settings(0.0, 1000.0))
         for _ in range(3):  # AG+AE meters the frame before the newest one: its first command holds
             nxt = ctrl.update(np.zeros((8, 8, 3), np.uint8), Settings(0.0, 1000.0))  # black: brighten
         assert nxt.exposure_us > 1000.0 and nxt.gain_db <= 12.0 and nxt.exposure_us <= 20000.0
+    with pytest.raises(InputError, match="--controller 'oracle': unknown or not for a real camera"):
+        controller_config("oracle", lim)
+    with pytest.raises(InputError, match="controllers.shim.exposure_upper_us"):  # Shim's own 75 µs floor
+        controller_config("shim", Limits(Range(0.0, 12.0), Range(20.0, 20000.0)))
     with pytest.raises(InputError, match="--model PATH is needed with --controller learned"):
-        controller_params("learned", lim)
+        controller_config("learned", lim)
     with pytest.raises(InputError, match="--model is only for --controller learned, not agae"):
-        controller_params("agae", lim, model="x.pt")
+        controller_config("agae", lim, model="x.pt")
     with pytest.raises(InputError, match="model checkpoint not found"):
-        controller_params("learned", lim, model=str(tmp_path / "missing.pt"))
+        controller_config("learned", lim, model=str(tmp_path / "missing.pt"))
     (tmp_path / "m.pt").write_bytes(b"")
-    assert controller_params("learned", lim, model=str(tmp_path / "m.pt"))["backend"] == "torch"  # no .onnx beside it
+    assert controller_config("learned", lim, model=str(tmp_path / "m.pt")).backend == "torch"  # no .onnx beside it
     (tmp_path / "m.onnx").write_bytes(b"")
-    assert controller_params("learned", lim, model=str(tmp_path / "m.pt")) == {
-        "checkpoint": str(tmp_path / "m.pt"), "backend": "onnx", "num_threads": 1}
+    learned = controller_config("learned", lim, model=str(tmp_path / "m.pt"))
+    assert (learned.checkpoint, learned.backend, learned.num_threads) == (str(tmp_path / "m.pt"), "onnx", 1)
 
 
 def test_background_writer_keeps_order_and_reports_a_write_error(tmp_path):

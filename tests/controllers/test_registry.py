@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from expoctl.controllers.base import Controller, Settings
-from expoctl.controllers.registry import CONTROLLERS, make_controller, register
+from dataclasses import dataclass
+
+from expoctl.controllers.registry import CONTROLLERS, ControllerContext, make_controller, register_controller
 from expoctl.errors import ConfigError
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "controllers" / "default.yaml"
@@ -45,21 +47,74 @@ def test_unknown_name_and_unknown_key():
     assert e.value.key == "controllers.agae.bogus"
 
 
-def test_register_extends_the_registry():
+@dataclass(frozen=True)
+class _HoldConfig:
+    gain_db: float = 3.0
+
+
+def test_register_extends_the_registry_with_a_typed_config():
     class Hold(Controller):
         name = "hold_test"
+
+        def __init__(self, config):
+            self.config = config
 
         def reset(self, initial):
             self.s = initial
 
         def update(self, image, applied):
-            return self.s
+            return Settings(self.config.gain_db, applied.exposure_us)
 
-    register("hold_test", lambda params: Hold())
+    register_controller("hold_test", config=_HoldConfig, label="Hold", rank=55)(Hold)
     try:
-        assert make_controller("hold_test").name == "hold_test"
+        assert CONTROLLERS.names().index("hold_test") == CONTROLLERS.names().index("fixed") + 1  # rank 55
+        ctrl = make_controller("hold_test", {"gain_db": 6})
+        assert ctrl.config == _HoldConfig(6.0) and ctrl.update(None, Settings(0.0, 100.0)) == Settings(6.0, 100.0)
+        with pytest.raises(ConfigError) as e:
+            make_controller("hold_test", {"gain_db": "x", "gian_db": 1})
+        assert [k for k, _ in e.value.problems] == ["controllers.hold_test.gain_db", "controllers.hold_test.gian_db"]
+        entry = CONTROLLERS.get("hold_test")
+        assert entry.module == __name__ and entry.package != "expoctl" and entry.label == "Hold"
     finally:
-        del CONTROLLERS["hold_test"]
+        CONTROLLERS.unregister("hold_test")
+    assert "hold_test" not in CONTROLLERS
+
+
+def test_a_class_without_the_methods_or_an_untyped_config_is_refused():
+    class NoUpdate:
+        def reset(self, initial):
+            pass
+
+    """Outside expoctl a broken registration is kept as broken (named with its package), never half-registered."""
+    CONTROLLERS.register("no_update_test", config=_HoldConfig, needs=())(NoUpdate)
+    CONTROLLERS.register("dict_config_test", config=dict, needs=())(Hold2)
+    try:
+        broken = CONTROLLERS.broken()
+        assert "lacks the method(s) update" in broken["no_update_test"][1]
+        assert "config= must be a dataclass" in broken["dict_config_test"][1]
+        assert "no_update_test" not in CONTROLLERS and "dict_config_test" not in CONTROLLERS
+        with pytest.raises(ConfigError, match=r"controller plugin 'no_update_test' \(package \w+\) is broken"):
+            make_controller("no_update_test")
+    finally:
+        CONTROLLERS.unregister("no_update_test")
+        CONTROLLERS.unregister("dict_config_test")
+    assert "no_update_test" not in CONTROLLERS.broken()
+
+
+class Hold2(Controller):
+    def reset(self, initial):
+        pass
+
+    def update(self, image, applied):
+        return applied
+
+
+def test_run_time_needs_are_named():
+    """The oracle needs the simulator's scene; the learned controller a checkpoint: asking without says so."""
+    with pytest.raises(ConfigError, match="needs scene, sensor, n_frames at run time"):
+        make_controller("oracle", {})
+    with pytest.raises(ConfigError, match="needs checkpoint"):
+        make_controller("learned", {}, ControllerContext())
 
 
 def test_agae_and_the_fixed_warm_up_meter_with_the_sensors_response():

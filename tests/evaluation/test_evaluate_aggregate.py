@@ -10,8 +10,12 @@ import pandas as pd
 import pytest
 
 from expoctl.evaluation.aggregate import add_section_ids, build_metrics, section_stats, validate_metrics
-from expoctl.evaluation.config import CONTROLLER_NAMES
-from expoctl.evaluation.run import VARIANTS
+from expoctl.controllers.registry import controller_names
+
+CONTROLLER_NAMES = controller_names()  # every registered controller
+from expoctl.evaluation.run import variants
+
+VARIANTS = variants(("orb", "viso"))
 
 
 def _frames(controller, split, nfm_orb, sections, run_id=None, seq="s1"):

@@ -26,7 +26,7 @@ def test_default_yaml_loads():
     ({"splits": {"train": {}}}, "evaluate.splits.train"),
     ({"splits": {"test": {"window": "middle"}}}, "evaluate.splits.test.window"),
     ({"splits": {"test": {"windows": [-1]}}}, "evaluate.splits.test.windows"),
-    ({"frontends": ["orb"]}, "evaluate.frontends"),
+    ({"frontends": ["orb", "harris"]}, "evaluate.frontends"),  # a choice of registered front ends
     ({"render_size": [10, 10]}, "evaluate.render_size"),
     ({"vo": {"min_inliers": 3}}, "evaluate.vo.min_inliers"),
     ({"vo": {"map": {"min_inliers": 2}}}, "evaluate.vo.map.min_inliers"),
@@ -61,3 +61,15 @@ def test_vo_map_block_is_read():
     assert cfg.vo.map.keyframe_every == 5  # unset keys keep the module's defaults
     assert cfg.vo.map.n_features == cfg.vo.n_features == 2000  # one ORB budget for both trackers
     assert hash(cfg.vo)  # frozen all the way down
+
+
+def test_frontends_and_controllers_are_choices_of_the_registries():
+    """null (or absent) is every registered one, in table order; a subset is kept as given."""
+    from expoctl.controllers.registry import CONTROLLERS
+    from expoctl.features.registry import FRONTENDS
+
+    every = EvaluateConfig.from_dict({"splits": {"validation": {}}, "controllers": None, "frontends": None})
+    assert every.controllers == CONTROLLERS.names() and every.frontends == FRONTENDS.names() == ("orb", "viso")
+    assert every.controllers[:2] == ("agae", "shin") and every.controllers[-2:] == ("learned", "oracle")
+    one = EvaluateConfig.from_dict({"splits": {"validation": {}}, "controllers": ["agae"], "frontends": ["viso"]})
+    assert one.controllers == ("agae",) and one.frontends == ("viso",)

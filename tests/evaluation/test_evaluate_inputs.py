@@ -30,7 +30,13 @@ def test_built_once_and_picklable_for_the_workers():
     assert inputs.world.render == RenderConfig(width=96, height=72, hfov_deg=70.0)
     assert (inputs.render.width, inputs.render.height, inputs.render.hfov_deg) == (64, 48, 70.0)  # render_size
     assert inputs.frames_path == "data/frames.parquet" and inputs.model_path == "models/controller.pt"
-    assert inputs.controller_params("fixed") == {"mode": "manual"} and inputs.controller_params("shin") == {}
+    # typed once here: the workers get configs, never a dict to parse again
+    from expoctl.controllers.fixed import FixedConfig
+    from expoctl.controllers.shin import ShinConfig
+
+    assert inputs.controller_config("fixed") == FixedConfig(mode="manual")
+    assert inputs.controller_config("shin") == ShinConfig()  # no section: the defaults
+    assert set(inputs.controllers) == {"fixed", "learned"}
     assert pickle.loads(pickle.dumps(inputs)) == inputs
     with pytest.raises(AttributeError):  # frozen: a worker cannot change what the stage built
         inputs.seed = 5
@@ -59,3 +65,14 @@ def test_every_group_problem_in_one_pass():
         "evaluate.warmup_frames", "features.n_jobs", "seed", "world.render.hfov_deg", "rig.fps", "sensor.full_well_e",
         "controllers.shin"]
     assert exc.value.problems[3] == ("world.render.hfov_deg", "must be a number in (0.0, 180.0) degrees, got 180")
+
+
+def test_every_controller_section_is_checked_and_an_unknown_one_is_named():
+    cfg = copy.deepcopy(CFG)
+    cfg["controllers"]["shin"] = {"alpha": 2.0}  # not driven by evaluate, still checked
+    cfg["controllers"]["hold"] = {"gain_db": 1.0}  # no such controller installed
+    with pytest.raises(ConfigError) as exc:
+        EvaluationInputs.from_resolved(cfg)
+    keys = [k for k, _ in exc.value.problems]
+    assert keys == ["controllers.shin.alpha", "controllers.hold"]
+    assert "unknown controller 'hold'" in exc.value.problems[1][1] and "expoctl.controllers" in exc.value.problems[1][1]

@@ -7,7 +7,9 @@ import pytest
 from eval_fixtures import K_DN, LinearSensor, moving_scene
 
 from expoctl.controllers.base import Controller, Settings
-from expoctl.evaluation.run import VARIANTS, WindowFrames, drive_window, image_stats
+from expoctl.evaluation.run import WindowFrames, drive_window, image_stats, variants
+
+VARIANTS = variants(("orb", "viso"))
 from expoctl.features.orb import OrbFrontEnd
 from expoctl.features.sumlog import SumLogParams
 from expoctl.features.viso import VisoFrontEnd

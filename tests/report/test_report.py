@@ -9,7 +9,9 @@ import pandas as pd
 import pytest
 
 from expoctl.errors import ConfigError, InputError
-from expoctl.evaluation.run import VARIANTS
+from expoctl.evaluation.run import variants
+
+VARIANTS = variants(("orb", "viso"))
 from expoctl.report.results import (ReportConfig, headline, load_eval, nfm_table, runs_table, tracking_table,
                             vo_margin_table)
 

@@ -83,7 +83,7 @@ def probe(tmp_path_factory):
     pcfg = ProbeConfig.from_dict({"frames": 48, "width": 64, "height": 48, "first_frames": 4, "last_frames": 4}, "p")
     cfg["world"]["cities"]["train"] = {"base": "train", "textures": {"tile_px": 256}}
     inputs = EvaluationInputs.from_resolved(cfg)
-    return make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, inputs.controller_params("agae"), root), cfg
+    return make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, inputs.controller_config("agae"), root), cfg
 
 
 def test_agae_returns_to_its_own_level_from_a_bright_start(probe):

@@ -242,7 +242,7 @@ def test_inputs_are_built_once_and_picklable_for_the_workers(city_dir):
     import pickle
 
     inputs = CollectInputs.from_resolved(tiny(city_dir))
-    assert inputs.seed == 3 and inputs.reference_params == {"damping": 0.2}
+    assert inputs.seed == 3 and inputs.reference_section == {"damping": 0.2} and inputs.reference_config.damping == 0.2
     assert (inputs.world.render.width, inputs.world.render.height, inputs.rig.fps) == (64, 48, 15.0)
     assert pickle.loads(pickle.dumps(inputs)) == inputs
     with pytest.raises(AttributeError):  # frozen: a worker cannot change what the stage built

@@ -31,17 +31,11 @@ def test_bad_config_names_the_key(bad):
 
 
 def test_registry_refuses_an_oracle_without_the_simulator():
-    from expoctl.controllers import registry
-    from expoctl.sim.oracle import register_oracle
+    from expoctl.controllers.registry import CONTROLLERS
 
-    saved = dict(registry.CONTROLLERS)
-    try:
-        register_oracle()
-        with pytest.raises(ConfigError, match="simulator"):
-            make_controller("oracle", {})
-    finally:
-        registry.CONTROLLERS.clear()
-        registry.CONTROLLERS.update(saved)
+    assert CONTROLLERS.get("oracle").info["needs"] == ("scene",)
+    with pytest.raises(ConfigError, match="simulator"):
+        make_controller("oracle", {})
 
 
 def _loop(level, frames, warmup, noise_dn=2.0, seed=5):

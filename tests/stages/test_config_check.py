@@ -49,12 +49,12 @@ def test_every_scale_preset_passes(scale):
     (["+controllers.learned.backend=tensorrt"], [("controllers.learned.backend",
                                                    "must be one of torch, onnx, got 'tensorrt'")]),
     (["collect.reference_controller=auto"], [("collect.reference_controller",
-                                               "unknown controller 'auto' (known: agae, fixed, learned, "
-                                               "mean_intensity, shim, shin)")]),
+                                               "unknown controller 'auto' (known: agae, shin, shim, "
+                                               "mean_intensity, fixed, learned)")]),
     (["collect.reference_controller=oracle"], [("collect.reference_controller",
-                                                 "the oracle cannot drive collect (it renders candidate frames from "
+                                                 "'oracle' cannot drive collect (it renders candidate frames from "
                                                  "the simulator's scene, which only evaluate gives it); use one of: "
-                                                 "agae, fixed, learned, mean_intensity, shim, shin")]),
+                                                 "agae, shin, shim, mean_intensity, fixed, learned")]),
     (["seed=-1"], [("seed", "must be an integer >= 0, got -1")]),
     (["paths.frames=null"], [("paths.frames", "must be a non-empty string, got None")]),
 ])
@@ -91,8 +91,8 @@ def test_a_group_several_stages_read_is_reported_once():
     (["iteration3.collect.splits.train.first_traversal=abc"], [
         ("iteration3.collect.splits.train.first_traversal", "must be an integer >= 0, got 'abc'")]),
     (["iteration2.collect.reference_controller=auto"], [
-        ("iteration2.collect.reference_controller", "unknown controller 'auto' (known: agae, fixed, learned, "
-                                                    "mean_intensity, shim, shin)")]),
+        ("iteration2.collect.reference_controller", "unknown controller 'auto' (known: agae, shin, shim, "
+                                                    "mean_intensity, fixed, learned)")]),
 ])
 def test_later_iteration_blocks_are_checked(overrides, problems):
     assert problems_of(overrides) == problems

@@ -10,7 +10,9 @@ from eval_fixtures import make_fixture_project, use_real_or_test_sensor
 
 from expoctl.errors import InputError
 from expoctl.evaluation.aggregate import validate_metrics
-from expoctl.evaluation.config import CONTROLLER_NAMES
+from expoctl.controllers.registry import controller_names
+
+CONTROLLER_NAMES = controller_names()  # every registered controller
 from fake_tracker import FakeTracker
 
 

@@ -18,8 +18,10 @@ from expoctl.cameras.cli_common import add_camera_options, check_numbers, descri
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from expoctl.cameras.session import camera_controller_names
+
     parser.add_argument("--camera", required=True, help="camera id: Aravis device id, serial number or IP address")
-    parser.add_argument("--controller", required=True, choices=("agae", "fixed", "learned"))
+    parser.add_argument("--controller", required=True, choices=camera_controller_names())
     parser.add_argument("--model", help="trained checkpoint (models/controller.pt) for --controller learned; the "
                                         "ONNX export beside it is used when present")
     parser.add_argument("--model-backend", choices=("auto", "onnx", "torch"), default="auto",
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     out = session.check_out_dir(args.out)
     with ExitStack() as stack:
         [(cam, limits)] = open_cameras(stack, [args.camera], args)
-        params = session.controller_params(args.controller, limits, args.model, args.model_backend)
+        params = session.controller_config(args.controller, limits, args.model, args.model_backend)
         initial = None
         if args.initial_gain_db is not None or args.initial_exposure_us is not None:
             now = cam.read_settings()

@@ -19,10 +19,12 @@ from expoctl.errors import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from expoctl.cameras.session import camera_controller_names
+
     parser.add_argument("--camera1", required=True, help="reference camera id (device id, serial or IP address)")
     parser.add_argument("--camera2", required=True, help="perturbed camera id")
     parser.add_argument("--out", required=True, help="new sequence directory to write (never overwritten)")
-    parser.add_argument("--reference", choices=("agae", "learned"), default="agae",
+    parser.add_argument("--reference", choices=camera_controller_names(), default="agae",
                         help="camera 1's controller (default agae; learned = the paper's second iteration)")
     parser.add_argument("--model", help="trained checkpoint for --reference learned")
     parser.add_argument("--model-backend", choices=("auto", "onnx", "torch"), default="auto")
@@ -60,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     out = session.check_out_dir(args.out)
     with ExitStack() as stack:
         (cam1, lim1), (cam2, lim2) = open_cameras(stack, [args.camera1, args.camera2], args)
-        params = session.controller_params(args.reference, lim1, args.model, args.model_backend)
+        params = session.controller_config(args.reference, lim1, args.model, args.model_backend)
         for cam, lim in ((cam1, lim1), (cam2, lim2)):
             print(describe(cam, lim))
         try:

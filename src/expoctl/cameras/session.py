@@ -18,7 +18,7 @@ import signal
 import threading
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -27,13 +27,11 @@ import numpy as np
 from expoctl.cameras.base import Camera, CameraError, Limits
 from expoctl.cameras.live import LiveRig
 from expoctl.controllers.base import Controller, Settings, TimedController
-from expoctl.errors import InputError
+from expoctl.errors import ConfigError, InputError
 from expoctl.sim.closed_loop import RigFrame, drive_rig
 from expoctl.sim.protocol import PerturbationConfig
 from expoctl.raw.format import SequenceWriter
 
-CONTROLLER_NAMES = ("agae", "fixed", "learned")
-REFERENCE_NAMES = ("agae", "learned")
 UNTIL_STOPPED = 10**12  # "no frame limit": the loop runs until Ctrl-C or a camera fails
 
 
@@ -47,39 +45,62 @@ def check_out_dir(out: str | Path) -> Path:
     return out
 
 
-def controller_params(name: str, limits: Limits, model: str | None = None, backend: str = "auto") -> dict:
-    """The controller's config section for a camera with these usable limits (AG+AE gets the camera's range, as the
-    camera's own AE has it)."""
-    if name not in CONTROLLER_NAMES:
-        raise InputError(f"--controller {name!r}: unknown (use one of {', '.join(CONTROLLER_NAMES)})")
-    if (model is not None) != (name == "learned"):
-        raise InputError("--model PATH is needed with --controller learned, and only then"
+def camera_controller_names() -> tuple[str, ...]:
+    """The registered controllers that can drive a real camera: all but those that need the simulator's scene."""
+    from expoctl.controllers.registry import controller_names
+
+    return controller_names(runs_without=("scene",))
+
+
+def controller_config(name: str, limits: Limits, model: str | None = None, backend: str = "auto") -> Any:
+    """The typed config of controller `name` for a camera with these usable limits: its defaults, with every gain
+    and exposure bound it has (its own, or a nested AG+AE's) set to the camera's range, as the camera's own AE has
+    it; a controller that needs a network gets `--model` as its checkpoint. Checked as the config would be."""
+    from expoctl.config_reader import read_config
+    from expoctl.controllers.registry import CONTROLLERS, with_limits
+
+    names = camera_controller_names()
+    if name not in names:
+        raise InputError(f"--controller {name!r}: unknown or not for a real camera (use one of {', '.join(names)})")
+    entry = CONTROLLERS.get(name)
+    wants_model = "checkpoint" in entry.info.get("needs", ())
+    if (model is not None) != wants_model:
+        raise InputError(f"--model PATH is needed with --controller {name}, and only then"
                          if model is None else f"--model is only for --controller learned, not {name}")
-    agae = {"exposure_lower_us": limits.exposure_us.low, "exposure_upper_us": limits.exposure_us.high,
-            "gain_lower_db": limits.gain_db.low, "gain_upper_db": limits.gain_db.high}
-    if name == "agae":
-        return agae
-    if name == "fixed":
-        return {"mode": "agae_warmup", "agae": agae}
-    path = Path(model)
-    if not path.is_file():
-        raise InputError(f"--model {model}: model checkpoint not found")
-    if backend == "auto":
-        backend = "onnx" if path.with_suffix(".onnx").is_file() else "torch"
-    return {"checkpoint": str(path), "backend": backend, "num_threads": 1}
+    config = with_limits(entry.config(), {"exposure_lower_us": limits.exposure_us.low,
+                                          "exposure_upper_us": limits.exposure_us.high,
+                                          "gain_lower_db": limits.gain_db.low, "gain_upper_db": limits.gain_db.high})
+    if wants_model:
+        path = Path(model)
+        if not path.is_file():
+            raise InputError(f"--model {model}: model checkpoint not found")
+        if backend == "auto":
+            backend = "onnx" if path.with_suffix(".onnx").is_file() else "torch"
+        config = replace(config, checkpoint=str(path), backend=backend, num_threads=1)
+    try:  # the camera's range may break the controller's own rules (Shim's 75 µs floor): say so by key
+        return read_config(entry.config, asdict(config), f"controllers.{name}")
+    except ConfigError as exc:
+        raise InputError(f"--controller {name} cannot use this camera's range: {exc}") from None
 
 
-def make_camera_controller(name: str, params: dict) -> Controller:
+def make_camera_controller(name: str, config: Any) -> Controller:
     from expoctl.controllers.registry import make_controller
 
-    if name == "learned" and params.get("num_threads"):
+    threads = getattr(config, "num_threads", None)
+    if "checkpoint" in _needs(name) and threads:
         # The network's input is assembled with torch ops even when ONNX Runtime runs the network; with torch's
         # default pool of one thread per core, a (1, 15, 64, 64) division took 19 ms on a loaded 2-core machine
         # instead of 0.1 ms. The loop runs on the threads it was given, so torch gets the same number.
         import torch
 
-        torch.set_num_threads(int(params["num_threads"]))
-    return make_controller(name, params)
+        torch.set_num_threads(int(threads))
+    return make_controller(name, config)
+
+
+def _needs(name: str) -> tuple[str, ...]:
+    from expoctl.controllers.registry import needs
+
+    return needs(name)
 
 
 class BackgroundWriter:
@@ -259,7 +280,7 @@ def _camera_frame_stats(rig: LiveRig, c: int) -> dict:
 # --- drive ----------------------------------------------------------------------------------------------------------
 
 
-def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, out: Path, n_frames: int, *,
+def drive(camera: Camera, limits: Limits, controller_name: str, params: Any, out: Path, n_frames: int, *,
           initial: Settings | None = None, timeout_s: float = 2.0,
           report: Callable[[str], None] = print) -> SessionResult:
     """One camera in closed loop under a controller, free-running at the camera's frame rate (module doc)."""
@@ -269,7 +290,7 @@ def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, ou
     w, h = camera.info.resolution
     meta = {"source": "rig", "cameras": 1,
             "rig": {"fps": camera.info.frame_rate_hz or 1.0, "resolution": [int(w), int(h)]},
-            "controller": {"name": controller_name, "params": params},
+            "controller": {"name": controller_name, "params": asdict(params)},
             "initial_settings": {"gain_db": start.gain_db, "exposure_us": start.exposure_us},
             "camera1": camera.info.to_dict(), "limits": {"camera1": _limits_dict(limits)}}
     writer = _open_writer_and_start(out, meta, rig)
@@ -301,15 +322,15 @@ def drive(camera: Camera, limits: Limits, controller_name: str, params: dict, ou
 # --- record ---------------------------------------------------------------------------------------------------------
 
 
-def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], reference: str, params: dict, out: Path, *,
+def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], reference: str, params: Any, out: Path, *,
            n_frames: int | None, baseline_m: float, seed: int = 0, warmup_frames: int = 30,
            perturbation: PerturbationConfig = PerturbationConfig(), pair_tolerance_ms: float = 10.0,
            timeout_s: float = 2.0, intrinsics: dict | None = None,
            report: Callable[[str], None] = print) -> SessionResult:
     """The paper's dual-camera data collection (module doc): camera 1 under `reference`, camera 2 perturbed from
     camera 1's settings frame by frame (`expoctl.sim.protocol`), both software-triggered together."""
-    if reference not in REFERENCE_NAMES:
-        raise InputError(f"--reference {reference!r}: unknown (use one of {', '.join(REFERENCE_NAMES)})")
+    if reference not in camera_controller_names():
+        raise InputError(f"--reference {reference!r}: unknown (use one of {', '.join(camera_controller_names())})")
     (w1, h1), (w2, h2) = cameras[0].info.resolution, cameras[1].info.resolution
     if (w1, h1) != (w2, h2):
         raise CameraError(f"cameras {cameras[0].camera_id} ({w1}x{h1}) and {cameras[1].camera_id} ({w2}x{h2}) deliver "
@@ -321,7 +342,7 @@ def record(cameras: tuple[Camera, Camera], limits: tuple[Limits, Limits], refere
     meta = {"source": "rig",
             "rig": {"baseline_m": float(baseline_m), "fps": 1.0, "resolution": [int(w1), int(h1)],
                     **({"intrinsics": dict(intrinsics)} if intrinsics else {})},
-            "reference_controller": {"name": reference, "params": params},
+            "reference_controller": {"name": reference, "params": asdict(params)},
             "seed": int(seed), "perturbation": perturbation.to_dict(), "warmup_frames": int(warmup_frames),
             "initial_settings": {"gain_db": start.gain_db, "exposure_us": start.exposure_us},
             "camera1": cameras[0].info.to_dict(), "camera2": cameras[1].info.to_dict(),

@@ -13,43 +13,58 @@ mode "manual": `gain_db` and `exposure_us` from config.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 from collections.abc import Callable, Iterable
 
 import cv2
 import numpy as np
 
-from expoctl.controllers.agae import AgAeController
+from expoctl.controllers.agae import AgAeConfig, AgAeController
 from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.registry import register_controller
 from expoctl.controllers.metrics import luma_uint8
-from expoctl.controllers.params import check_params, require
+from expoctl.config_reader import Section, read_config
 
-DEFAULTS: dict = {
-    "mode": "agae_warmup",  # agae_warmup | manual
-    "warmup_frames": 30,
-    "gain_db": 0.0,  # manual mode
-    "exposure_us": 5000.0,  # manual mode
-    "agae": {},  # AG+AE parameters used during the warm-up (controllers.agae keys)
-}
+@dataclass(frozen=True)
+class FixedConfig:
+    """`controllers.fixed`."""
+
+    mode: str = "agae_warmup"  # agae_warmup | manual
+    warmup_frames: int = 30
+    gain_db: float = 0.0  # manual mode
+    exposure_us: float = 5000.0  # manual mode
+    agae: AgAeConfig = field(default_factory=AgAeConfig)  # AG+AE used during the warm-up (controllers.agae keys)
+
+    def check(self, r: Section) -> None:
+        """Bounds and the rules between keys (read_config runs it once every key has the right type)."""
+        checks = [
+            (self.mode in ("agae_warmup", "manual"), "mode", "must be agae_warmup or manual"),
+            (self.warmup_frames >= 1, "warmup_frames", "must be >= 1"),
+            (0.0 <= self.gain_db <= 30.0, "gain_db", "must be in [0, 30] dB"),
+            (75.0 <= self.exposure_us <= 30000.0, "exposure_us", "must be in [75, 30000] µs"),
+        ]
+        for ok, key, problem in checks:
+            if not ok:
+                r.problem(key, problem)
 
 
+@register_controller("fixed", config=FixedConfig, label="Fixed", colour="#7f7f7f", rank=50)
 class FixedController(Controller):
     name = "fixed"
 
-    def __init__(self, params: dict | None = None):
-        p = self.params = check_params("controllers.fixed", DEFAULTS, params)
-        k = "controllers.fixed."
-        require(p["mode"] in ("agae_warmup", "manual"), k + "mode", "must be agae_warmup or manual")
-        require(p["warmup_frames"] >= 1, k + "warmup_frames", "must be >= 1")
-        require(0.0 <= p["gain_db"] <= 30.0, k + "gain_db", "must be in [0, 30] dB")
-        require(75.0 <= p["exposure_us"] <= 30000.0, k + "exposure_us", "must be in [75, 30000] µs")
-        require(isinstance(p["agae"], dict), k + "agae", "must be a mapping of AG+AE parameters")
-        self._agae = AgAeController(p["agae"], config_key="controllers.fixed.agae") if p["mode"] == "agae_warmup" else None
-        self.reset(Settings(p["gain_db"], p["exposure_us"]))
+    def __init__(self, config: FixedConfig | dict | None = None):
+        """`config`: the typed config, or its section as a mapping (read and checked here)."""
+        if not isinstance(config, FixedConfig):
+            config = read_config(FixedConfig, config, "controllers.fixed")
+        p = self.config = config
+        self._agae = AgAeController(p.agae, config_key="controllers.fixed.agae") if p.mode == "agae_warmup" else None
+        self.reset(Settings(p.gain_db, p.exposure_us))
 
     def reset(self, initial: Settings) -> None:
         self._frame = 0
         if self._agae is None:
-            self._locked: Settings | None = Settings(self.params["gain_db"], self.params["exposure_us"]).clamped()
+            self._locked: Settings | None = Settings(self.config.gain_db, self.config.exposure_us).clamped()
         else:
             self._locked = None
             self._agae.reset(initial)
@@ -59,7 +74,7 @@ class FixedController(Controller):
             return self._locked
         self._frame += 1
         command = self._agae.update(image, applied)
-        if self._frame >= self.params["warmup_frames"]:
+        if self._frame >= self.config.warmup_frames:
             self._locked = command
         return command
 

@@ -31,6 +31,7 @@ sub-millisecond exposures in daylight (docs/runs/old_camera_results.md).
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,8 +39,9 @@ import torch
 
 from expoctl.camera.ranges import norm_to_exposure, norm_to_gain
 from expoctl.controllers.agae import ln_exposure_product, split_exposure_first
-from expoctl.config_reader import Problems, Section
-from expoctl.controllers.base import Controller, DelayedController, Settings, read_latency_frames
+from expoctl.config_reader import Problems, param, read_config
+from expoctl.controllers.base import LATENCY_FRAMES_MIN, Controller, DelayedController, Settings
+from expoctl.controllers.registry import ControllerContext, register_controller
 from expoctl.errors import ConfigError
 from expoctl.net.preprocess import N_FRAMES, assemble_input, prepare_frame, settings_to_norm, stack_frames
 
@@ -121,31 +123,44 @@ class LearnedController(Controller):
         return exposure_first(nxt) if self.allocation == "exposure_first" else nxt
 
 
-def make_learned(params: dict) -> Controller:
-    """Registry factory: params {checkpoint: models/controller.pt, backend: torch|onnx, num_threads: 1,
-    allocation: network|exposure_first, latency_frames: 1}.
+@dataclass(frozen=True)
+class LearnedConfig:
+    """`controllers.learned`, checked without loading the checkpoint (compose checks it before any network exists).
 
     `latency_frames` (simulator only): the network's settings computed from frame t expose frame t + latency_frames
     (1: the paper's rig; 2: the calibrated camera's earliest, docs/calibration.md). Train with the same value
     (`labels.latency_frames` follows it), so the labels target the frames the command can still change."""
-    p = read_learned_params(params)
-    latency = p.pop("latency_frames")
-    ctrl = LearnedController.from_checkpoint(**p)
-    return ctrl if latency == 1 else DelayedController(ctrl, latency)
+
+    checkpoint: str | None = None  # the network evaluate drives; null: paths.final_model (the stage decides)
+    backend: str = param("torch", choices=("torch", "onnx"))  # whether the .onnx exists is checked with the checkpoint
+    num_threads: int | None = param(1, min=1)
+    allocation: str = param("network", choices=ALLOCATIONS)
+    latency_frames: int = param(1, min=LATENCY_FRAMES_MIN)
+
+
+def _build_learned(config: LearnedConfig, context: ControllerContext) -> Controller:
+    """The network from `context.checkpoint` (its .onnx beside it for backend onnx), delayed by latency_frames."""
+    path = context.checkpoint or config.checkpoint or "models/controller.pt"
+    ctrl = LearnedController.from_checkpoint(path, num_threads=config.num_threads,
+                                             backend=config.backend, allocation=config.allocation)
+    return ctrl if config.latency_frames == 1 else DelayedController(ctrl, config.latency_frames)
+
+
+register_controller("learned", config=LearnedConfig, factory=_build_learned, needs=("checkpoint",), label="Ours",
+                    colour="#1f77b4", rank=60)(LearnedController)
+
+
+def make_learned(params: dict | LearnedConfig) -> Controller:
+    """The learned controller from its config section, whose `checkpoint` names the network
+    (default models/controller.pt)."""
+    config = params if isinstance(params, LearnedConfig) else read_config(LearnedConfig, params, "controllers.learned")
+    return _build_learned(config, ControllerContext(checkpoint=config.checkpoint or "models/controller.pt"))
 
 
 def read_learned_params(params: dict | None, problems: Problems | None = None) -> dict:
-    """The `controllers.learned` keys, checked without loading the checkpoint (the compose stage checks them before
-    any network exists): {path, num_threads, backend, allocation, latency_frames}. With `problems`, problems are
-    added there for the caller to raise."""
-    r = Section(params, "controllers.learned", problems)
-    out = {
-        "path": r.value("checkpoint", "models/controller.pt"),
-        # whether onnx's .onnx file exists is checked with the checkpoint
-        "backend": r.choice("backend", ("torch", "onnx"), "torch"),
-        "num_threads": r.integer("num_threads", 1, min=1, nullable=True),
-        "allocation": r.choice("allocation", ALLOCATIONS, "network"),
-        "latency_frames": read_latency_frames(r),
-    }
-    r.done()
-    return out
+    """The `controllers.learned` keys as a dict {path, backend, num_threads, allocation, latency_frames} (default
+    path models/controller.pt); with `problems`, problems are added there for the caller to raise."""
+    config = read_config(LearnedConfig, params, "controllers.learned", problems)
+    return {"path": config.checkpoint or "models/controller.pt", "backend": config.backend,
+            "num_threads": config.num_threads, "allocation": config.allocation,
+            "latency_frames": config.latency_frames}

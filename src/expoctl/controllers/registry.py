@@ -1,74 +1,107 @@
-"""Name → controller factory. `make_controller("agae", cfg["controllers"]["agae"])`.
+"""The controller registry: every gain/exposure controller by name, with its typed config and report style.
 
-`CONTROLLERS` is a plain dict so other modules (the simulator's oracle) can add themselves with `register(...)`
-without editing this file. A factory takes the controller's own config section (a dict, possibly empty) and returns a
-fresh Controller; unknown keys and bad values raise ConfigError("controllers.<name>.<key>", ...).
+A controller registers where it is defined (`expoctl.plugins` has the rules, entry points included):
+
+    @dataclass(frozen=True)
+    class HoldConfig:
+        gain_db: float = 0.0
+
+    @register_controller("hold", config=HoldConfig, label="Hold")
+    class HoldController(Controller):
+        def __init__(self, config: HoldConfig): ...
+
+Its config section is `controllers.<name>` (absent: every default). What a controller may need besides its config
+is known only where it runs, and comes as a `ControllerContext`: `needs` names it at registration ("checkpoint":
+the learned network's file; "scene": the simulator's scene and sensor, so it cannot drive a real camera or collect).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from dataclasses import dataclass, fields, is_dataclass, replace
+from typing import Any
 
 from expoctl.controllers.base import Controller
 from expoctl.errors import ConfigError
+from expoctl.plugins import Plugin, Registry
 
-ControllerFactory = Callable[[dict], Controller]
+#: what a controller can need at run time besides its config (`needs=` at registration)
+NEEDS = ("checkpoint", "scene")
 
-
-def _agae(params: dict) -> Controller:
-    from expoctl.controllers.agae import AgAeController
-
-    return AgAeController(params)
-
-
-def _shin(params: dict) -> Controller:
-    from expoctl.controllers.shin import ShinController
-
-    return ShinController(params)
+#: built-ins: every module of expoctl.controllers, and the oracle, which renders the scene and so lives with the
+#: simulator
+CONTROLLERS = Registry("controller", "expoctl.controllers", "controllers", ("expoctl.controllers", "expoctl.sim.oracle"),
+                       ("reset", "update"))
 
 
-def _shim(params: dict) -> Controller:
-    from expoctl.controllers.shim import ShimController
+@dataclass(frozen=True)
+class ControllerContext:
+    """The run-time inputs of a controller (those its registration `needs`)."""
 
-    return ShimController(params)
-
-
-def _mean_intensity(params: dict) -> Controller:
-    from expoctl.controllers.mean_intensity import MeanIntensityController
-
-    return MeanIntensityController(params)
-
-
-def _fixed(params: dict) -> Controller:
-    from expoctl.controllers.fixed import FixedController
-
-    return FixedController(params)
+    seed: int = 0
+    checkpoint: str | None = None    # needs "checkpoint": the trained network (.pt; its .onnx beside it)
+    scene: Any = None                # needs "scene": the simulator's scene (RouteScene / CachedScene) ...
+    sensor: Any = None               # ... its sensor,
+    n_frames: int | None = None      # ... the traversal's length in frames
+    first_frame: int = 0             # ... and the first frame the loop runs (warm-up included)
 
 
-def _learned(params: dict) -> Controller:
-    # imported lazily: it needs torch and a trained checkpoint (params["checkpoint"])
-    from expoctl.controllers.learned import make_learned
-
-    return make_learned(params)
-
-
-CONTROLLERS: dict[str, ControllerFactory] = {
-    "agae": _agae,
-    "shin": _shin,
-    "shim": _shim,
-    "mean_intensity": _mean_intensity,
-    "fixed": _fixed,
-    "learned": _learned,
-}
+def register_controller(name: str, *, config: type, needs: tuple[str, ...] = (), **kw: Any):
+    """Decorator: register a controller class (or, with `factory=`, anything) under `name`; see the module doc.
+    `label`, `colour` and `rank` set how reports show it."""
+    bad = [n for n in needs if n not in NEEDS]
+    if bad:
+        raise ValueError(f"controller {name!r}: needs= names {bad}, known: {list(NEEDS)}")
+    return CONTROLLERS.register(name, config=config, needs=tuple(needs), **kw)
 
 
-def register(name: str, factory: ControllerFactory) -> None:
-    """Add (or replace) a controller factory under `name`."""
-    CONTROLLERS[name] = factory
+def controller(name: str, key: str | None = None) -> Plugin:
+    """The registry entry `name` (ConfigError at `key`, default `controllers.<name>`, if unknown or broken)."""
+    return CONTROLLERS.get(name, key)
 
 
-def make_controller(name: str, params: dict | None = None) -> Controller:
-    """Build the controller called `name` from its config section `params` (None = all defaults)."""
-    if name not in CONTROLLERS:
-        raise ConfigError("controllers", f"unknown controller {name!r} (known: {', '.join(sorted(CONTROLLERS))})")
-    return CONTROLLERS[name]({} if params is None else params)
+def needs(name: str) -> tuple[str, ...]:
+    return tuple(controller(name).info.get("needs", ()))
+
+
+def controller_names(*, runs_without: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """Every registered controller in table order; with `runs_without`, those that need none of those inputs (e.g.
+    `runs_without=("scene",)`: the ones that can drive a real camera or collect)."""
+    return tuple(p.name for p in CONTROLLERS.entries() if not set(p.info.get("needs", ())) & set(runs_without))
+
+
+def read_controller_config(name: str, section: Any, problems=None, key: str | None = None) -> Any:
+    """`controllers.<name>` as its typed config (every problem with its key path)."""
+    key = key or f"controllers.{name}"
+    return controller(name, key).read_config(section, key, problems)
+
+
+def make_controller(name: str, config: Any = None, context: ControllerContext | None = None) -> Controller:
+    """A fresh controller `name` from its typed config (or its section as a mapping, read here; None: defaults)
+    and the run-time `context` its registration needs."""
+    entry = controller(name)
+    if not isinstance(config, entry.config):
+        config = entry.read_config(config, f"controllers.{name}")
+    context = context or ControllerContext()
+    for need in entry.info.get("needs", ()):
+        missing = [f for f in (("scene", "sensor", "n_frames") if need == "scene" else (need,))
+                   if getattr(context, f) is None and getattr(config, f, None) is None]
+        if missing:
+            raise ConfigError(f"controllers.{name}", f"needs {', '.join(missing)} at run time ({entry.origin}): "
+                              + ("it renders candidate frames, so it runs only inside the simulator (evaluate)"
+                                 if need == "scene" else "a trained network"))
+    return entry.factory(config, context)
+
+
+def with_limits(config: Any, limits: dict[str, float]) -> Any:
+    """`config` with each of the keys `limits` names (exposure_lower_us, gain_upper_db, …) that it or a nested
+    config has set to the given value: a real camera's usable range, as its own AE has it."""
+    if not is_dataclass(config):
+        return config
+    changes = {}
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if f.name in limits:
+            changes[f.name] = float(limits[f.name])
+        elif is_dataclass(value):
+            changes[f.name] = with_limits(value, limits)
+    return replace(config, **changes)

@@ -31,6 +31,9 @@ Deviations from the MATLAB demo (Test_nelder_mead_AE.m / nelder_mead_AE.m), all 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import math
 from collections.abc import Generator
 
@@ -38,36 +41,64 @@ import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.controllers.base import Controller, Settings
+from expoctl.controllers.registry import register_controller
 from expoctl.camera.response import uint8_to_linear
 from expoctl.controllers.metrics import luma_uint8, shin_score
-from expoctl.controllers.params import check_params, require
+from expoctl.config_reader import Section, read_config
 
 DB_PER_STOP = 20.0 * math.log10(2.0)
 _BOX_LO = np.array([GAIN_DB_MIN / DB_PER_STOP, math.log2(EXPOSURE_US_MIN)])
 _BOX_HI = np.array([GAIN_DB_MAX / DB_PER_STOP, math.log2(EXPOSURE_US_MAX)])
 
-DEFAULTS: dict = {
-    "alpha": 0.4,
-    "k_g": 2.0,
-    "beta": 0.4,
-    "lam": 1e3,
-    "delta": 0.06,
-    "n_cells": 10,
-    "reflection": 1.0,
-    "expansion": 2.0,
-    "contraction": 0.5,
-    "shrink": 0.5,
-    "tolerance": 1e-5,
-    "max_evaluations": 50,
-    "min_initial_step_ev": 0.25,
-    "restart_abs_drift": 0.05,
-    "restart_rel_drift": 0.1,
-    "hold_window": 3,  # frames per median in the hold-phase drift test
-    "restart_scene_ev": 1.5,
-    "dark_mean": 15.0,
-    "bright_mean": 240.0,
-    "max_mismatched_frames": 3,  # frames not taken at the commanded vertex before the search restarts from them
-}
+@dataclass(frozen=True)
+class ShinConfig:
+    """`controllers.shin`."""
+
+    alpha: float = 0.4
+    k_g: float = 2.0
+    beta: float = 0.4
+    lam: float = 1e3
+    delta: float = 0.06
+    n_cells: int = 10
+    reflection: float = 1.0
+    expansion: float = 2.0
+    contraction: float = 0.5
+    shrink: float = 0.5
+    tolerance: float = 1e-5
+    max_evaluations: int = 50
+    min_initial_step_ev: float = 0.25
+    restart_abs_drift: float = 0.05
+    restart_rel_drift: float = 0.1
+    hold_window: int = 3  # frames per median in the hold-phase drift test
+    restart_scene_ev: float = 1.5
+    dark_mean: float = 15.0
+    bright_mean: float = 240.0
+    max_mismatched_frames: int = 3  # frames not taken at the commanded vertex before the search restarts from them
+
+    def check(self, r: Section) -> None:
+        """Bounds and the rules between keys (read_config runs it once every key has the right type)."""
+        checks = [
+            (0.0 <= self.alpha <= 1.0, "alpha", "must be in [0, 1]"),
+            (self.k_g >= 0 and self.beta >= 0, "beta", "k_g and beta must be >= 0"),
+            (self.lam > 0, "lam", "must be > 0"),
+            (0.0 <= self.delta < 1.0, "delta", "must be in [0, 1)"),
+            (self.n_cells >= 2, "n_cells", "must be >= 2"),
+            (self.reflection > 0, "reflection", "must be > 0"),
+            (self.expansion > max(1.0, self.reflection), "expansion", "must be > max(1, reflection)"),
+            (0 < self.contraction < 1, "contraction", "must be in (0, 1)"),
+            (0 < self.shrink < 1, "shrink", "must be in (0, 1)"),
+            (self.tolerance >= 0, "tolerance", "must be >= 0"),
+            (self.max_evaluations >= 3, "max_evaluations", "must be >= 3 (one simplex)"),
+            (self.min_initial_step_ev > 0, "min_initial_step_ev", "must be > 0"),
+            (self.restart_abs_drift >= 0 and self.restart_rel_drift >= 0, "restart_rel_drift", "must be >= 0"),
+            (self.restart_scene_ev > 0, "restart_scene_ev", "must be > 0"),
+            (0 <= self.dark_mean < self.bright_mean <= 255, "bright_mean", "need 0 <= dark_mean < bright_mean <= 255"),
+            (self.max_mismatched_frames >= 1, "max_mismatched_frames", "must be >= 1"),
+            (self.hold_window >= 1, "hold_window", "must be >= 1"),
+        ]
+        for ok, key, problem in checks:
+            if not ok:
+                r.problem(key, problem)
 
 
 def to_point(s: Settings) -> np.ndarray:
@@ -134,29 +165,15 @@ def nelder_mead(
     return x[0].copy(), float(f[0])
 
 
+@register_controller("shin", config=ShinConfig, label="Shin", colour="#9467bd", rank=20)
 class ShinController(Controller):
     name = "shin"
 
-    def __init__(self, params: dict | None = None):
-        p = self.params = check_params("controllers.shin", DEFAULTS, params)
-        k = "controllers.shin."
-        require(0.0 <= p["alpha"] <= 1.0, k + "alpha", "must be in [0, 1]")
-        require(p["k_g"] >= 0 and p["beta"] >= 0, k + "beta", "k_g and beta must be >= 0")
-        require(p["lam"] > 0, k + "lam", "must be > 0")
-        require(0.0 <= p["delta"] < 1.0, k + "delta", "must be in [0, 1)")
-        require(p["n_cells"] >= 2, k + "n_cells", "must be >= 2")
-        require(p["reflection"] > 0, k + "reflection", "must be > 0")
-        require(p["expansion"] > max(1.0, p["reflection"]), k + "expansion", "must be > max(1, reflection)")
-        require(0 < p["contraction"] < 1, k + "contraction", "must be in (0, 1)")
-        require(0 < p["shrink"] < 1, k + "shrink", "must be in (0, 1)")
-        require(p["tolerance"] >= 0, k + "tolerance", "must be >= 0")
-        require(p["max_evaluations"] >= 3, k + "max_evaluations", "must be >= 3 (one simplex)")
-        require(p["min_initial_step_ev"] > 0, k + "min_initial_step_ev", "must be > 0")
-        require(p["restart_abs_drift"] >= 0 and p["restart_rel_drift"] >= 0, k + "restart_rel_drift", "must be >= 0")
-        require(p["restart_scene_ev"] > 0, k + "restart_scene_ev", "must be > 0")
-        require(0 <= p["dark_mean"] < p["bright_mean"] <= 255, k + "bright_mean", "need 0 <= dark_mean < bright_mean <= 255")
-        require(p["max_mismatched_frames"] >= 1, k + "max_mismatched_frames", "must be >= 1")
-        require(p["hold_window"] >= 1, k + "hold_window", "must be >= 1")
+    def __init__(self, config: ShinConfig | dict | None = None):
+        """`config`: the typed config, or its section as a mapping (read and checked here)."""
+        if not isinstance(config, ShinConfig):
+            config = read_config(ShinConfig, config, "controllers.shin")
+        p = self.config = config
         self.reset(Settings(0.0, 5000.0))
 
     # ------------------------------------------------------------------------------------------------ public API
@@ -170,8 +187,8 @@ class ShinController(Controller):
         self.n_restarts = -1  # the first search is not a restart
 
     def score(self, image: np.ndarray) -> float:
-        p = self.params
-        return shin_score(image, p["alpha"], p["k_g"], p["beta"], p["lam"], p["delta"], p["n_cells"])[0]
+        p = self.config
+        return shin_score(image, p.alpha, p.k_g, p.beta, p.lam, p.delta, p.n_cells)[0]
 
     def update(self, image: np.ndarray, applied: Settings) -> Settings:
         applied = applied.clamped()
@@ -197,23 +214,23 @@ class ShinController(Controller):
         return (
             scene_ev is not None
             and self._search_scene_ev is not None
-            and abs(scene_ev - self._search_scene_ev) > self.params["restart_scene_ev"]
+            and abs(scene_ev - self._search_scene_ev) > self.config.restart_scene_ev
         )
 
     def _hold_drifted(self, score: float, mean: float) -> bool:
         if self._badly_exposed(mean):
             return True
         self._hold_scores.append(score)
-        n = self.params["hold_window"]
+        n = self.config.hold_window
         if len(self._hold_scores) < 2 * n:
             return False
         reference = float(np.median(self._hold_scores[:n]))
         recent = float(np.median(self._hold_scores[-n:]))
-        limit = max(self.params["restart_abs_drift"], self.params["restart_rel_drift"] * abs(reference))
+        limit = max(self.config.restart_abs_drift, self.config.restart_rel_drift * abs(reference))
         return abs(recent - reference) > limit
 
     def _badly_exposed(self, mean: float) -> bool:
-        return mean < self.params["dark_mean"] or mean > self.params["bright_mean"]
+        return mean < self.config.dark_mean or mean > self.config.bright_mean
 
     @staticmethod
     def _scene_ev(image: np.ndarray, s: Settings) -> float | None:
@@ -227,12 +244,12 @@ class ShinController(Controller):
         return math.log2(lin) - math.log2(s.exposure_us) - s.gain_db / DB_PER_STOP
 
     def _start_search(self, x_now: np.ndarray, mean: float, scene_ev: float | None) -> None:
-        p = self.params
+        p = self.config
         self.n_restarts += 1
         h = matlab_h(mean)
         step = math.log2(1.0 + h)
-        if abs(step) < p["min_initial_step_ev"]:
-            step = math.copysign(p["min_initial_step_ev"], step if step != 0 else 1.0)
+        if abs(step) < p.min_initial_step_ev:
+            step = math.copysign(p.min_initial_step_ev, step if step != 0 else 1.0)
         x0 = x_now.copy()
         if self._badly_exposed(mean):  # pre-correct so a flat (saturated/black) simplex can move:
             x0 = clip_box(x0 + np.array([0.0, step]))  # along exposure first,
@@ -246,8 +263,8 @@ class ShinController(Controller):
             vertices.append(clip_box(v))
         self._mismatches = 0
         self._search = nelder_mead(
-            np.array(vertices), p["reflection"], p["expansion"], p["contraction"], p["shrink"], p["tolerance"],
-            p["max_evaluations"],
+            np.array(vertices), p.reflection, p.expansion, p.contraction, p.shrink, p.tolerance,
+            p.max_evaluations,
         )
         self._hold = None
         self._pending = self._search.send(None)
@@ -258,7 +275,7 @@ class ShinController(Controller):
         If the camera keeps delivering frames at other settings (it did not apply ours), restart from them."""
         if not np.allclose(self._pending, x_now, atol=0.02):  # 0.02 EV: settings round-trip tolerance
             self._mismatches += 1
-            if self._mismatches >= self.params["max_mismatched_frames"]:
+            if self._mismatches >= self.config.max_mismatched_frames:
                 self._start_search(x_now, self._last_mean, self._last_scene_ev)
         for _ in range(8):  # a new point equal to the one in hand is scored with the same frame
             if not np.allclose(self._pending, x_now, atol=0.02):

@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from expoctl.evaluation.config import CONTROLLER_NAMES, ROUTE_SPLITS
-from expoctl.evaluation.run import VARIANTS
+from expoctl.controllers.registry import CONTROLLERS
+from expoctl.evaluation.config import ROUTE_SPLITS
+from expoctl.evaluation.run import frame_variants
 
 SECTION_KINDS = ("static", "dynamic")
 
@@ -38,6 +39,7 @@ def section_stats(frames: pd.DataFrame, min_section_frames: int = 1) -> pd.DataF
     if "section_id" not in frames.columns:
         frames = add_section_ids(frames)
     keys = ["run_id", "route_split", "controller", "sequence", "section_id", "section"]
+    VARIANTS = frame_variants(frames)
     out = []
     for key, g in frames.groupby(keys, sort=True):
         valid = g[f"nfm_{VARIANTS[0]}"].notna()
@@ -57,13 +59,14 @@ def section_stats(frames: pd.DataFrame, min_section_frames: int = 1) -> pd.DataF
 
 def build_metrics(sections: pd.DataFrame, runs: pd.DataFrame) -> dict:
     """metrics.json content for every route split and controller present in `runs` (see module docstring)."""
+    VARIANTS = section_variants(sections)
     metrics: dict[str, Any] = {}
     for split in ROUTE_SPLITS:
         split_runs = runs[runs["route_split"] == split]
         if split_runs.empty:
             continue
         metrics[split] = {}
-        for ctrl in sorted(split_runs["controller"].unique(), key=_controller_order):
+        for ctrl in sorted(split_runs["controller"].unique(), key=controller_order):
             r = split_runs[split_runs["controller"] == ctrl]
             entry: dict[str, Any] = {}
             for kind in SECTION_KINDS:
@@ -78,17 +81,31 @@ def build_metrics(sections: pd.DataFrame, runs: pd.DataFrame) -> dict:
     return metrics
 
 
-def _controller_order(name: str) -> tuple[int, str]:
-    return (CONTROLLER_NAMES.index(name) if name in CONTROLLER_NAMES else len(CONTROLLER_NAMES), name)
+def section_variants(sections: pd.DataFrame) -> tuple[str, ...]:
+    """The front-end variants of a sections table (its min_nfm_<variant> columns), in `variants` order."""
+    return frame_variants(pd.DataFrame(columns=[f"nfm_{c[len('min_nfm_'):]}" for c in sections.columns
+                                                if c.startswith("min_nfm_")]))
+
+
+def controller_order(name: str) -> tuple[int, str]:
+    """Sort key of a controller in tables: its registry rank (a name no longer registered: last), then its name."""
+    entries = {p.name: p.rank for p in CONTROLLERS.entries()}
+    return (entries.get(name, 10**9), name)
 
 
 def _mean_or_none(col: pd.Series) -> float | None:
     return float(col.mean()) if len(col) else None
 
 
-def validate_metrics(metrics: Any, controllers=CONTROLLER_NAMES, splits=ROUTE_SPLITS) -> list[str]:
-    """Problems with a metrics.json object against the schema in docs/evaluation.md (empty list = valid)."""
+def validate_metrics(metrics: Any, controllers=None, splits=ROUTE_SPLITS, frontends=None) -> list[str]:
+    """Problems with a metrics.json object against the schema in docs/evaluation.md (empty list = valid).
+    `controllers`, `frontends`: those it must hold (default: every registered one)."""
+    from expoctl.evaluation.run import variants
+    from expoctl.features.registry import FRONTENDS
+
     problems: list[str] = []
+    controllers = CONTROLLERS.names() if controllers is None else controllers
+    VARIANTS = variants(FRONTENDS.names() if frontends is None else frontends)
     if not isinstance(metrics, dict):
         return [f"top level must be an object, got {type(metrics).__name__}"]
     for split in splits:

@@ -13,11 +13,11 @@ from typing import Any
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from expoctl.config_reader import Problems, Section, is_integer
+from expoctl.controllers.registry import CONTROLLERS
+from expoctl.features.registry import FRONTENDS
 from expoctl.vo.local_map import MapTrackerConfig
 
 ROUTE_SPLITS = ("validation", "test")
-CONTROLLER_NAMES = ("agae", "shin", "shim", "mean_intensity", "fixed", "learned", "oracle")
-FRONTENDS = ("orb", "viso")
 WINDOW_MODES = ("passage", "portal")
 
 
@@ -44,7 +44,8 @@ class VoConfig:
 
 @dataclass(frozen=True)
 class EvaluateConfig:
-    controllers: tuple[str, ...] = CONTROLLER_NAMES
+    # null in the config: every registered controller (built-ins and installed plugins), in table order
+    controllers: tuple[str, ...] = field(default_factory=lambda: CONTROLLERS.names())
     splits: dict[str, SplitPlan] = field(default_factory=dict)
     warmup_frames: int = 30
     initial_gain_db: float = 0.0
@@ -56,7 +57,7 @@ class EvaluateConfig:
     # its mid-point, as collect renders the training data. true is ~2x faster but measurably further from the
     # sub-frame reference blur (docs/scale_out.md, Render once)
     share_render: bool = False
-    frontends: tuple[str, ...] = FRONTENDS
+    frontends: tuple[str, ...] = field(default_factory=lambda: FRONTENDS.names())  # null: every registered one
     sumlog_pairs: int = 30
     min_section_frames: int = 10
     vo: VoConfig = VoConfig()
@@ -68,7 +69,7 @@ class EvaluateConfig:
     @classmethod
     def from_dict(cls, d: Any, key: str = "evaluate", problems: Problems | None = None) -> "EvaluateConfig":
         r = Section(d, key, problems, required=True)
-        controllers = r.names("controllers", CONTROLLER_NAMES, CONTROLLER_NAMES, what="controller")
+        controllers = CONTROLLERS.read_names(r, "controllers")
         splits = r.section("splits", required=True)
         if not splits.mapping:
             splits.problem(None, f"must map route split (validation, test) → plan, got {splits.mapping!r}")
@@ -87,11 +88,7 @@ class EvaluateConfig:
                                      and all(is_integer(v) and 16 <= v <= 8192 for v in size)):
             r.problem("render_size", f"must be [width, height] in pixels (16–8192) or null, got {size!r}")
             size = None
-        fronts = r.value("frontends", list(FRONTENDS))
-        if isinstance(fronts, str) or not isinstance(fronts, (list, tuple)) or sorted(fronts) != sorted(FRONTENDS):
-            # metrics.json always carries all four front-end keys (docs/evaluation.md), so both front ends always run
-            r.problem("frontends", f"must list both front ends {list(FRONTENDS)}, got {fronts!r}")
-            fronts = FRONTENDS
+        fronts = FRONTENDS.read_names(r, "frontends")
         vo = r.section("vo")
         n_features = vo.integer("n_features", 2000, min=10)
         vo_cfg = VoConfig(

@@ -13,9 +13,27 @@ from expoctl.config_reader import Problems, Section, read_seed
 from expoctl.evaluation.config import EvaluateConfig
 from expoctl.features.pipeline import FeaturesConfig
 from expoctl.sim.closed_loop import RigConfig
-from expoctl.sim.collect import controller_params
 from expoctl.world.city import WorldConfig
 from expoctl.world.render_config import RenderConfig
+
+
+def read_controller_configs(sections: Section, names) -> dict[str, Any]:
+    """{name: typed config} for each controller of `names` and each registered one with a section under
+    `controllers` (every section is checked, whether evaluate drives it or not); a section whose name is no
+    registered controller is a problem naming it (an uninstalled plugin, a typo)."""
+    from expoctl.controllers.registry import CONTROLLERS
+
+    out = {}
+    for name in list(names) + [n for n in sections.mapping if n not in names]:
+        if name not in CONTROLLERS:
+            for key, problem in CONTROLLERS.problems([name], sections.path(name)):
+                sections.problems.add(key, problem)
+            continue
+        sub = sections.section(name)
+        out[name] = sub.read(CONTROLLERS.get(name).config)
+        sub.done()
+    sections.done(list(sections.mapping))
+    return out
 
 
 @dataclass(frozen=True)
@@ -29,7 +47,7 @@ class EvaluationInputs:
     world: WorldConfig
     rig: RigConfig
     sensor: SensorConfig
-    controllers: dict[str, dict]  # controllers.<name> as given (each controller's factory checks its keys)
+    controllers: dict[str, Any]  # controllers.<name> as its typed config, for every controller evaluate drives
     frames_path: str  # paths.frames
     model_path: str  # controllers.learned.checkpoint, else paths.model (relative: to the project root)
 
@@ -46,11 +64,11 @@ class EvaluationInputs:
         world = WorldConfig.from_dict(top.value("world", None), "world", problems)
         rig = RigConfig.from_dict(top.value("rig", None), "rig", problems)
         sensor = SensorConfig.from_dict(top.value("sensor", None), "sensor", problems)
-        sections = top.section("controllers")
-        controllers = {name: controller_params(sections, name) for name in sections.mapping}
+        controllers = read_controller_configs(top.section("controllers"), evaluate.controllers)
         paths = top.section("paths")
         frames_path = paths.text("frames", "")
-        model_path = (controllers.get("learned") or {}).get("checkpoint") or paths.text("model", "")
+        learned = controllers.get("learned")
+        model_path = getattr(learned, "checkpoint", None) or paths.text("model", "")
         if owner:
             problems.raise_if_any()
         return cls(evaluate, features, seed, world, rig, sensor, controllers, frames_path, str(model_path))
@@ -64,9 +82,18 @@ class EvaluationInputs:
             return render
         return render.with_size(*self.evaluate.render_size)
 
-    def controller_params(self, name: str) -> dict:
-        """controllers.<name> (a copy; {} when absent)."""
-        return dict(self.controllers.get(name) or {})
+    def controller_config(self, name: str) -> Any:
+        """The typed config of controller `name` (`controllers.<name>`, read once by `from_resolved`; a registered
+        controller the config has no section for: its defaults)."""
+        if name in self.controllers:
+            return self.controllers[name]
+        from expoctl.controllers.registry import controller
+
+        return controller(name).config()
+
+    def frontend_config(self, name: str) -> Any:
+        """The typed config of front end `name` (`features.<name>`)."""
+        return self.features.config(name)
 
     def learned_model_path(self, project_root: str | Path) -> Path:
         p = Path(self.model_path)

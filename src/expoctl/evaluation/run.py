@@ -26,7 +26,19 @@ from expoctl.sim.closed_loop import RigFrame, run_closed_loop
 from expoctl.vo.local_map import MapTracker, MapTrackerConfig
 
 #: front-end keys of metrics.json / frames.parquet: raw and SumLog variants of each front end
-VARIANTS = ("orb", "viso", "orb_sumlog", "viso_sumlog")
+
+
+def variants(frontends) -> tuple[str, ...]:
+    """The NFM columns evaluate records for these front ends: each on the raw grey image, then each on its SumLog
+    transform (`orb`, `viso`, `orb_sumlog`, `viso_sumlog`): metrics.json's per-front-end keys, in this order."""
+    frontends = tuple(frontends)
+    return frontends + tuple(f"{f}_sumlog" for f in frontends)
+
+
+def frame_variants(frames) -> tuple[str, ...]:
+    """The variants a per-frame table holds (its nfm_<variant> columns), in `variants` order."""
+    names = [c[len("nfm_"):] for c in frames.columns if c.startswith("nfm_")]
+    return variants(n for n in names if not n.endswith("_sumlog"))
 
 
 @dataclass(frozen=True)

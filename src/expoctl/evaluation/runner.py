@@ -200,8 +200,8 @@ def tune_sumlog_params(inputs: EvaluationInputs, project_root: str | os.PathLike
         raise InputError(f"{frames_path}: no sequential camera-1 pairs in the train split to tune SumLog on")
     grid = fcfg.sumlog
     out = {}
-    for name in ("orb", "viso"):
-        fe = make_frontend(name, getattr(fcfg, name))
+    for name in inputs.evaluate.frontends:
+        fe = make_frontend(name, fcfg.config(name))
         out[name] = tune_sumlog(pairs, fe, grid.alphas, grid.betas, grid.rescale, seed=fcfg.seed)
     return out
 
@@ -219,14 +219,13 @@ def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
     Every run's images are those it would get alone: the caches hold pure functions of (frame, exposure)."""
     import expoctl.sim.oracle as oracle_mod
     from expoctl.controllers.base import Settings
-    from expoctl.controllers.registry import make_controller
+    from expoctl.controllers.registry import ControllerContext, make_controller, needs
     from expoctl.evaluation.run import WindowFrames, WindowRun, drive_lockstep
     from expoctl.features.pipeline import make_frontend
     from expoctl.sim.closed_loop import RouteScene, make_sensors, rig_metadata
     from expoctl.world import load_city_cached
     from expoctl.vo.frame_to_frame import intrinsics_matrix
 
-    oracle_mod.register_oracle()
     w = jobs[0].window
     if any(job.window != w for job in jobs):
         raise ValueError("run_window: every job must drive the same window")
@@ -243,19 +242,16 @@ def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
     K = intrinsics_matrix(rig_metadata(rig, render)["intrinsics"])
     runs, warmups = [], []
     for job in jobs:
-        params = inputs.controller_params(job.controller)
+        config = inputs.controller_config(job.controller)
+        # a controller that sees the scene may warm up for less (its config's warmup_frames: the oracle's)
         warmup = ecfg.warmup_frames
-        if job.controller == "oracle":
-            warmup = min(warmup, oracle_mod.OracleParams.from_dict(params).warmup_frames)
-            controller = make_controller("oracle", {**params, "scene": scene, "sensor": sensor, "seed": w.seed,
-                                                    "n_frames": w.traversal_frames,
-                                                    "first_frame": max(0, w.start - warmup)})
-        elif job.controller == "learned":
-            controller = make_controller("learned", {**params, "checkpoint": job.model_path})
-        else:
-            controller = make_controller(job.controller, params)
+        if "scene" in needs(job.controller) and hasattr(config, "warmup_frames"):
+            warmup = min(warmup, config.warmup_frames)
+        context = ControllerContext(seed=w.seed, checkpoint=job.model_path, scene=scene, sensor=sensor,
+                                    n_frames=w.traversal_frames, first_frame=max(0, w.start - warmup))
+        controller = make_controller(job.controller, config, context)
         # front ends per run: their matchers keep state between frames
-        frontends = {"orb": make_frontend("orb", fcfg.orb), "viso": make_frontend("viso", fcfg.viso)}
+        frontends = {name: make_frontend(name, fcfg.config(name)) for name in ecfg.frontends}
         runs.append(WindowRun(
             controller, window, seed=w.seed, frontends=frontends, sumlog=job.sumlog,
             initial=Settings(ecfg.initial_gain_db, ecfg.initial_exposure_us), warmup_frames=warmup, K=K,
@@ -298,23 +294,19 @@ def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
              progress: bool = False, parallel: ParallelConfig | None = None) -> EvaluationResult:
     """Plan, tune SumLog, run every (window, controller) and aggregate (no files written). `parallel`: where the
     runs go (`run_jobs`); never changes a result."""
-    from expoctl.controllers.registry import make_controller
+    from expoctl.controllers.registry import make_controller, needs
 
     project_root = Path(project_root)
     ecfg = inputs.evaluate
-    for name in ecfg.controllers:  # their params, before any work
-        if name not in ("learned", "oracle"):
-            make_controller(name, inputs.controller_params(name))
+    for name in ecfg.controllers:  # built once before any work (a plugin's constructor may refuse its config)
+        if not needs(name):
+            make_controller(name, inputs.controller_config(name))
     model_path = None
     if "learned" in ecfg.controllers:
         model_path = inputs.learned_model_path(project_root)
         if not model_path.is_file():
             raise InputError(f"{model_path}: trained model missing — the 'learned' controller cannot run; run the "
                              "train stage first (or drop 'learned' from evaluate.controllers)")
-    if "oracle" in ecfg.controllers:
-        from expoctl.sim.oracle import OracleParams
-
-        OracleParams.from_dict(inputs.controller_params("oracle"))
     windows = plan_windows(inputs, project_root)
     sumlog = tune_sumlog_params(inputs, project_root, ecfg.sumlog_pairs)
     # the oracle is the slowest run: start those first so the pool does not end on one long job
@@ -331,7 +323,8 @@ def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
     runs = pd.DataFrame(summaries).sort_values("run_id").reset_index(drop=True)
     sections = section_stats(frames, ecfg.min_section_frames)
     metrics = build_metrics(sections, runs)
-    problems = validate_metrics(metrics, ecfg.controllers, [s for s in ROUTE_SPLITS if s in ecfg.splits])
+    problems = validate_metrics(metrics, ecfg.controllers, [s for s in ROUTE_SPLITS if s in ecfg.splits],
+                                ecfg.frontends)
     if problems:
         raise ValueError("metrics.json would break its schema (docs/evaluation.md): " + "; ".join(problems))
     return EvaluationResult(frames, runs, sections, metrics, sumlog, thumbs, windows)

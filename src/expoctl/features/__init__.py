@@ -4,9 +4,10 @@ package), fundamental-matrix verification (`verify`), SumLog (`sumlog`) and the 
 """
 
 from expoctl.features.orb import OrbFrontEnd, OrbParams
-from expoctl.features.pipeline import (FeaturesConfig, compute_features, iter_training_pairs_rgb, make_frontend,
+from expoctl.features.pipeline import (FeaturesConfig, compute_features, iter_training_pairs_rgb,
                                        rgb_to_grey)
+from expoctl.features.registry import FRONTENDS, frontend_names, make_frontend, register_frontend
 from expoctl.features.sumlog import SumLogParams, sumlog_uint8, tune_sumlog
 
-__all__ = ["FeaturesConfig", "OrbFrontEnd", "OrbParams", "SumLogParams", "compute_features", "iter_training_pairs_rgb",
+__all__ = ["FRONTENDS", "FeaturesConfig", "frontend_names", "register_frontend", "OrbFrontEnd", "OrbParams", "SumLogParams", "compute_features", "iter_training_pairs_rgb",
            "make_frontend", "rgb_to_grey", "sumlog_uint8", "tune_sumlog"]

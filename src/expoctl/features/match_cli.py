@@ -16,13 +16,14 @@ from pathlib import Path
 import yaml
 
 from expoctl.errors import InputError
-from expoctl.features.pipeline import FRONTEND_NAMES, make_frontend, match_images, read_grey
+from expoctl.features.pipeline import match_images, read_grey
+from expoctl.features.registry import frontend_names, make_frontend
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("prev", help="earlier image (8-bit grey or RGB, any format OpenCV reads)")
     parser.add_argument("cur", help="later image, same size")
-    parser.add_argument("--frontend", choices=FRONTEND_NAMES, default="orb", help="feature front end (default: orb)")
+    parser.add_argument("--frontend", choices=frontend_names(), default="orb", help="feature front end (default: orb)")
     parser.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
     parser.add_argument("--config", type=Path, default=None,
                         help="YAML with front-end parameters: conf/features/default.yaml, or a resolved config "

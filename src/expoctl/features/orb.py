@@ -20,7 +20,8 @@ import cv2
 import numba
 import numpy as np
 
-from expoctl.config_reader import Section, is_integer
+from expoctl.config_reader import Section, is_integer, read_config
+from expoctl.features.registry import register_frontend
 from expoctl.features.verify import VerifyParams, count_fundamental_inliers
 
 
@@ -42,7 +43,11 @@ class OrbParams:
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "features.orb") -> "OrbParams":
         """Build from a config dict (missing keys take the defaults above); raise ConfigError on bad values."""
-        r = Section(d, key)
+        return read_config(cls, d, key)
+
+    @classmethod
+    def from_section(cls, r: Section) -> "OrbParams":
+        """The keys of section `r` (`features.orb`); the caller calls `r.done()`."""
         ws = r.value("working_size", cls.working_size)
         if ws is not None:
             if not (isinstance(ws, (list, tuple)) and len(ws) == 2 and all(is_integer(v) and v >= 32 for v in ws)):
@@ -62,7 +67,6 @@ class OrbParams:
             **positive,
         )
         r.problems.collect(params.verify_params)
-        r.done()
         return params
 
     def verify_params(self) -> VerifyParams:
@@ -83,6 +87,7 @@ class OrbFeatures:
     descriptors: np.ndarray  # (N, 32) uint8 binary descriptors
 
 
+@register_frontend("orb", config=OrbParams, label="ORB", rank=10)
 class OrbFrontEnd:
     """FrontEnd (see frontend.py) using OpenCV ORB; `params` is an OrbParams or a config dict."""
 

@@ -16,6 +16,7 @@ import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any, Iterable
 
 import cv2
@@ -25,11 +26,11 @@ import pandas as pd
 from expoctl.config_reader import Problems, Section, is_integer
 from expoctl.errors import ConfigError, InputError
 from expoctl.features.frontend import PairCounts
+from expoctl.features.registry import FRONTENDS, frontend, frontend_names, make_frontend
 from expoctl.features.sumlog import SumLogGrid
 from expoctl.parallel import ParallelConfig, run_ordered
 from expoctl.raw.format import decode_8bit_image
 
-FRONTEND_NAMES = ("orb", "viso")
 FRAMES_COLUMNS = ("sequence", "frame_id", "camera", "image_path")
 FEATURES_COLUMNS = ["sequence", "frame_id", "camera", "frontend", "n_features"]
 MATCHES_COLUMNS = ["sequence", "frame_id", "cam_from", "cam_to", "frontend", "n_matches", "n_inliers"]
@@ -38,26 +39,31 @@ CAMERAS = (1, 2)
 
 @dataclass(frozen=True)
 class FeaturesConfig:
-    """The `features` config group (conf/features/default.yaml); front-end dicts are validated by the front ends."""
+    """The `features` config group (conf/features/default.yaml): which front ends the features stage runs, and every
+    registered front end's typed config (`features.<name>`, read once here; evaluate runs its own choice of them)."""
 
-    frontends: tuple[str, ...] = FRONTEND_NAMES
-    orb: dict = field(default_factory=dict)
-    viso: dict = field(default_factory=dict)
+    frontends: tuple[str, ...] = field(default_factory=frontend_names)  # null in the config: every registered one
+    configs: Mapping[str, Any] = field(default_factory=dict)  # front-end name -> its typed config, every registered
     n_jobs: int = 1
     seed: int = 0
     sumlog: SumLogGrid = SumLogGrid()  # SumLog tuning grid (sumlog.tune_sumlog); not used by compute_features
 
+    def config(self, name: str) -> Any:
+        """The typed config of front end `name` (its defaults when the config read none)."""
+        if name in self.configs:
+            return self.configs[name]
+        return frontend(name, "features.frontends").config()
+
     @classmethod
     def from_dict(cls, d: dict | None, problems: Problems | None = None) -> "FeaturesConfig":
         r = Section(d, "features", problems)
-        frontends = r.names("frontends", FRONTEND_NAMES, FRONTEND_NAMES, what="front end")
-        blocks = {}
-        for name in ("orb", "viso"):  # a front end's own keys are checked by the front end (make_frontend)
-            block = r.value(name, None)
-            if block is not None and not isinstance(block, dict):
-                r.problem(name, f"must be a mapping, got {block!r}")
-                block = None
-            blocks[name] = dict(block or {})
+        known = frontend_names()
+        frontends = FRONTENDS.read_names(r, "frontends")  # null: every registered front end
+        configs = {}
+        for name in known:  # every front end's keys, checked by its own typed config
+            sub = r.section(name)
+            configs[name] = sub.read(frontend(name).config)
+            sub.done()
         n_jobs = r.value("n_jobs", 1)
         if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
             r.problem("n_jobs", f"must be a positive integer or -1 (all cores), got {n_jobs!r}")
@@ -65,20 +71,7 @@ class FeaturesConfig:
         seed = r.integer("seed", 0)
         sumlog = SumLogGrid.from_dict(r.value("sumlog", None), r.problems)
         r.done()
-        return cls(frontends, blocks["orb"], blocks["viso"], n_jobs, seed, sumlog)
-
-
-def make_frontend(name: str, params: dict | None = None):
-    """A front end by name; the libviso2-style one is imported only when asked for (it is the heavier module)."""
-    if name == "orb":
-        from expoctl.features.orb import OrbFrontEnd
-
-        return OrbFrontEnd(params or {})
-    if name == "viso":
-        from expoctl.features.viso import VisoFrontEnd
-
-        return VisoFrontEnd(params or {})
-    raise ConfigError("features.frontends", f"unknown front end {name!r} (known: {', '.join(FRONTEND_NAMES)})")
+        return cls(frontends, configs, n_jobs, seed, sumlog)
 
 
 def read_grey(path: str | os.PathLike) -> np.ndarray:
@@ -158,7 +151,7 @@ def _plan(frames_df: pd.DataFrame, project_root: Path, cfg: FeaturesConfig) -> l
     if dup.any():
         r = df[dup].iloc[0]
         raise InputError(f"frames table: sequence {r.sequence} frame {r.frame_id} camera {r.camera} appears twice")
-    fronts = tuple((name, getattr(cfg, name)) for name in cfg.frontends)
+    fronts = tuple((name, cfg.config(name)) for name in cfg.frontends)
     tasks = []
     for sequence, seq in df.groupby("sequence", sort=True):
         seq = seq.sort_values(["frame_id", "camera"])
@@ -185,10 +178,11 @@ def _plan(frames_df: pd.DataFrame, project_root: Path, cfg: FeaturesConfig) -> l
 _FRONTEND_CACHE: dict[tuple[str, str], Any] = {}
 
 
-def _frontend(name: str, params: dict):
-    key = (name, repr(sorted(params.items())))
+def _frontend(name: str, config: Any):
+    """One front end per (name, typed config) per worker process (a config's repr names all its values)."""
+    key = (name, repr(config))
     if key not in _FRONTEND_CACHE:
-        _FRONTEND_CACHE[key] = make_frontend(name, params)
+        _FRONTEND_CACHE[key] = make_frontend(name, config)
     return _FRONTEND_CACHE[key]
 
 
@@ -248,8 +242,8 @@ def compute_features(
     this host); never changes a result. Bad input raises InputError naming the file/sequence/frame.
     """
     cfg = params if isinstance(params, FeaturesConfig) else FeaturesConfig.from_dict(params)
-    for name in cfg.frontends:  # validate front-end params (and that the module imports) before any work
-        make_frontend(name, getattr(cfg, name))
+    for name in cfg.frontends:  # build each front end once before any work (a plugin's constructor may refuse)
+        make_frontend(name, cfg.config(name))
     n_jobs = cfg.n_jobs if n_jobs is None else n_jobs
     if n_jobs == -1:
         n_jobs = os.cpu_count() or 1

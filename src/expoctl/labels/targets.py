@@ -40,9 +40,9 @@ from expoctl.camera import ranges
 from expoctl.config_reader import Section
 from expoctl.controllers.base import read_latency_frames
 from expoctl.errors import InputError
+from expoctl.features.registry import frontend_names
 
 METRICS = ("feat", "match", "hybrid")
-FRONTENDS = ("orb", "viso")
 COMBINED_FRONTEND = "orb+viso"  # both front ends' counts, each relative to its best candidate (see _relative_sum)
 EXPOSURE_AVERAGES = ("linear", "log")
 CAMERAS = (1, 2)
@@ -58,7 +58,9 @@ LABEL_COLUMNS = (
 
 @dataclass(frozen=True)
 class LabelConfig:
-    frontend: str = "orb"  # whose counts define "most features" / "most inlier matches": orb | viso | orb+viso
+    # whose counts define "most features" / "most inlier matches": a registered front end (orb, viso, a plugin's), or
+    # several joined by "+" (orb+viso): their counts, each relative to its best candidate, summed
+    frontend: str = "orb"
     window: int = 4  # future frames t+L … t+L+window−1 (paper: 4, one full quadrant cycle of the perturbation)
     hybrid_feat_weight: float = 0.5  # M_hybrid = w·M_feat + (1 − w)·M_match (paper default: equal weights)
     # How M_hybrid averages exposure. "linear" (default) follows the paper ("the weighted average of the parameter
@@ -71,11 +73,23 @@ class LabelConfig:
     # window starts there, because frames before it are already committed to earlier commands. 1 = the paper's rig.
     latency_frames: int = 1
 
+    @property
+    def frontends(self) -> tuple[str, ...]:
+        """The front ends whose counts the labels use."""
+        return tuple(self.frontend.split("+"))
+
     @classmethod
     def from_dict(cls, d: Mapping | None, group: str = "labels") -> "LabelConfig":
         r = Section(d, group)
+        frontend = r.text("frontend", cls.frontend)
+        known = frontend_names()
+        parts = frontend.split("+")
+        if len(set(parts)) != len(parts) or not all(p in known for p in parts):
+            r.problem("frontend", f"must be a front end ({', '.join(known)}) or several joined by '+' "
+                                  f"(e.g. {COMBINED_FRONTEND}), got {frontend!r}")
+            frontend = cls.frontend
         cfg = cls(
-            frontend=r.choice("frontend", FRONTENDS + (COMBINED_FRONTEND,), cls.frontend),
+            frontend=frontend,
             window=r.integer("window", cls.window, min=1),
             hybrid_feat_weight=r.number("hybrid_feat_weight", cls.hybrid_feat_weight, min=0.0, max=1.0),
             hybrid_exposure_average=r.choice("hybrid_exposure_average", EXPOSURE_AVERAGES,
@@ -291,7 +305,7 @@ def compute_labels(frames: pd.DataFrame, features: pd.DataFrame, matches: pd.Dat
     cfg = cfg if isinstance(cfg, LabelConfig) else LabelConfig.from_dict(cfg)
     names = {"frames": "frames", "features": "features", "matches": "matches", **(names or {})}
     idx = index_frames(frames, names["frames"])
-    used = FRONTENDS if cfg.frontend == COMBINED_FRONTEND else (cfg.frontend,)
+    used = cfg.frontends
     n_feat = [feature_counts(features, idx, f, names["features"]) for f in used]
     n_inl = [match_counts(matches, idx, f, names["matches"]) for f in used]
     w, lat = cfg.window, cfg.latency_frames

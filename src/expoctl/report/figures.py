@@ -16,25 +16,46 @@ import pandas as pd
 
 from expoctl.io import atomic_path
 
-CONTROLLER_STYLE = {  # colour, label
-    "agae": ("#d62728", "AG+AE"),
-    "shin": ("#9467bd", "Shin"),
-    "shim": ("#8c564b", "Shim"),
-    "mean_intensity": ("#e377c2", "Mean intensity"),
-    "fixed": ("#7f7f7f", "Fixed"),
-    "learned": ("#1f77b4", "Ours"),
-    "oracle": ("#2ca02c", "Oracle"),
-}
+def controller_style(controller: str) -> tuple[str | None, str]:
+    """(colour, label) of a controller as its registration gives them (`expoctl.controllers.registry`); a name no
+    longer registered (an old metrics file): no colour (matplotlib's cycle picks one) and its name."""
+    from expoctl.controllers.registry import CONTROLLERS
+
+    if controller in CONTROLLERS:
+        entry = CONTROLLERS.get(controller)
+        return entry.colour, entry.label
+    return None, controller
 
 
 def ordered(names) -> list[str]:
-    """Controller names in the house order (agae, shin, shim, mean_intensity, fixed, learned, oracle), others last."""
-    order = list(CONTROLLER_STYLE)
-    return sorted(names, key=lambda c: (order.index(c) if c in order else len(order), c))
+    """Controller names in table order (the registry's ranks: agae, shin, shim, mean_intensity, fixed, learned,
+    oracle, then plugins), names no longer registered last."""
+    from expoctl.evaluation.aggregate import controller_order
+
+    return sorted(names, key=controller_order)
 
 
 def label(controller: str) -> str:
-    return CONTROLLER_STYLE.get(controller, (None, controller))[1]
+    return controller_style(controller)[1]
+
+
+def frontends_of(frames: pd.DataFrame) -> list[str]:
+    """The raw front ends a per-frame table holds (its nfm_<front end> columns), in registry order."""
+    from expoctl.evaluation.run import frame_variants
+
+    return [v for v in frame_variants(frames) if not v.endswith("_sumlog")]
+
+
+def frontend_label(name: str, long: bool = False) -> str:
+    """A front end's label (`orb` → ORB, `viso` → libviso2; long: libviso2-style), SumLog variants with ' (SL)'."""
+    from expoctl.features.registry import FRONTENDS
+
+    base = name[: -len("_sumlog")] if name.endswith("_sumlog") else name
+    text = base
+    if base in FRONTENDS:
+        entry = FRONTENDS.get(base)
+        text = entry.info.get("long_label", entry.label) if long else entry.label
+    return text + (" (SL)" if name.endswith("_sumlog") else "")
 
 
 def _plt():
@@ -82,18 +103,21 @@ def tunnel_timeline(frames: pd.DataFrame, path: str | os.PathLike, splits=("vali
     chosen = [(s, q) for s, q in chosen if q is not None]
     if not chosen:
         return False
-    fig, axes = plt.subplots(4, len(chosen), figsize=(6.2 * len(chosen), 9.5), sharex="col", squeeze=False)
+    fes = frontends_of(frames)
+    n = len(fes)  # one row per front end's NFM, then gain and exposure
+    fig, axes = plt.subplots(n + 2, len(chosen), figsize=(6.2 * len(chosen), 9.5 * (n + 2) / 4), sharex="col",
+                             squeeze=False)
     for col, (split, seq) in enumerate(chosen):
         w_all = frames[frames["sequence"] == seq]
         for ctrl in ordered(set(w_all["controller"])):
             w = w_all[w_all["controller"] == ctrl].sort_values("frame")
-            colour, name = CONTROLLER_STYLE.get(ctrl, (None, ctrl))
+            colour, name = controller_style(ctrl)
             x = w["frame"].to_numpy()
             kw = dict(color=colour, label=name, lw=1.3 if ctrl in ("learned", "agae", "oracle") else 0.9)
-            axes[0, col].plot(x, w["nfm_orb"], **kw)
-            axes[1, col].plot(x, w["nfm_viso"], **kw)
-            axes[2, col].plot(x, w["gain_db"], **kw)
-            axes[3, col].plot(x, w["exposure_us"] / 1000.0, **kw)
+            for row, fe in enumerate(fes):
+                axes[row, col].plot(x, w[f"nfm_{fe}"], **kw)
+            axes[n, col].plot(x, w["gain_db"], **kw)
+            axes[n + 1, col].plot(x, w["exposure_us"] / 1000.0, **kw)
         ref = w_all[w_all["controller"] == w_all["controller"].iloc[0]].sort_values("frame")
         for ax in axes[:, col]:
             _shade_dynamic(ax, ref, "frame")
@@ -101,12 +125,12 @@ def tunnel_timeline(frames: pd.DataFrame, path: str | os.PathLike, splits=("vali
         label_ = str(w_all["window_label"].iloc[0])
         axes[0, col].set_title(f"{split}: {w_all['city'].iloc[0]} city, {label_}\n({seq}; grey = dynamic section)",
                                fontsize=9)
-        axes[0, col].set_ylabel("ORB inlier matches")
-        axes[1, col].set_ylabel("libviso2-style inlier matches")
-        axes[2, col].set_ylabel("gain (dB)")
-        axes[3, col].set_ylabel("exposure (ms)")
-        axes[3, col].set_yscale("log")
-        axes[3, col].set_xlabel("frame")
+        for row, fe in enumerate(fes):
+            axes[row, col].set_ylabel(f"{frontend_label(fe, long=True)} inlier matches")
+        axes[n, col].set_ylabel("gain (dB)")
+        axes[n + 1, col].set_ylabel("exposure (ms)")
+        axes[n + 1, col].set_yscale("log")
+        axes[n + 1, col].set_xlabel("frame")
     axes[0, 0].legend(fontsize=7, ncol=2, loc="lower left")
     fig.tight_layout()
     _save(fig, path)
@@ -124,7 +148,7 @@ def image_strips(frames: pd.DataFrame, thumbs_dir: str | os.PathLike, path: str 
     if seq is None:
         return False
     w_all = frames[frames["sequence"] == seq]
-    ctrls = [c for c in (controllers or CONTROLLER_STYLE) if c in set(w_all["controller"])]
+    ctrls = [c for c in (controllers or ordered(set(w_all["controller"]))) if c in set(w_all["controller"])]
     loaded = {}
     for c in ctrls:
         run_id = str(w_all[w_all["controller"] == c]["run_id"].iloc[0])
@@ -140,6 +164,7 @@ def image_strips(frames: pd.DataFrame, thumbs_dir: str | os.PathLike, path: str 
     near = [k for k in common if ref.loc[k, "portal_kind"] == portal] or common
     cols = [near[i] for i in np.unique(np.linspace(0, len(near) - 1, min(n_columns, len(near))).round().astype(int))]
     rows = [c for c in ctrls if c in loaded]
+    caption_fe = frontends_of(frames)[0]  # each thumbnail's caption: the first front end's NFM
     fig, axes = plt.subplots(len(rows), len(cols), figsize=(1.9 * len(cols), 1.75 * len(rows)), squeeze=False)
     for i, c in enumerate(rows):
         fr, imgs = loaded[c]
@@ -149,8 +174,9 @@ def image_strips(frames: pd.DataFrame, thumbs_dir: str | os.PathLike, path: str 
             ax.imshow(imgs[int(np.where(fr == k)[0][0])])
             ax.set_xticks([])
             ax.set_yticks([])
-            nfm = per.loc[k, "nfm_orb"]
-            ax.set_xlabel(f"ORB NFM {'—' if not np.isfinite(nfm) else int(nfm)}", fontsize=7, labelpad=1)
+            nfm = per.loc[k, f"nfm_{caption_fe}"]
+            ax.set_xlabel(f"{frontend_label(caption_fe)} NFM {'—' if not np.isfinite(nfm) else int(nfm)}", fontsize=7,
+                          labelpad=1)
             if i == 0:
                 ax.set_title(f"t {per.loc[k, 'portal_dt_s']:+.1f} s", fontsize=8)
             if j == 0:
@@ -169,19 +195,23 @@ def controller_timeline(frames: pd.DataFrame, split: str, controller: str, path:
     f = frames[(frames["route_split"] == split) & (frames["controller"] == controller)]
     if f.empty:
         return False
-    fig, axes = plt.subplots(4, 1, figsize=(7.5, 8), sharex=True)
+    fes = frontends_of(frames)
+    n = len(fes)
+    fig, axes = plt.subplots(n + 2, 1, figsize=(7.5, 8 * (n + 2) / 4), sharex=True)
     for seq, w in f.groupby("sequence"):
         w = w.sort_values("frame")
         x = w["frame"].to_numpy()
-        axes[0].plot(x, w["nfm_orb"], lw=1, label=str(w["window_label"].iloc[0]) + f" ({seq})")
-        axes[1].plot(x, w["nfm_viso"], lw=1)
-        axes[2].plot(x, w["gain_db"], lw=1)
-        axes[3].plot(x, w["exposure_us"] / 1000.0, lw=1)
-    for ax, lab in zip(axes, ("ORB NFM", "libviso2-style NFM", "gain (dB)", "exposure (ms)")):
+        for row, fe in enumerate(fes):
+            kw = {"label": str(w["window_label"].iloc[0]) + f" ({seq})"} if row == 0 else {}
+            axes[row].plot(x, w[f"nfm_{fe}"], lw=1, **kw)
+        axes[n].plot(x, w["gain_db"], lw=1)
+        axes[n + 1].plot(x, w["exposure_us"] / 1000.0, lw=1)
+    labels = [f"{frontend_label(fe, long=True)} NFM" for fe in fes] + ["gain (dB)", "exposure (ms)"]
+    for ax, lab in zip(axes, labels):
         ax.set_ylabel(lab)
         ax.grid(alpha=0.3)
-    axes[3].set_yscale("log")
-    axes[3].set_xlabel("frame")
+    axes[n + 1].set_yscale("log")
+    axes[n + 1].set_xlabel("frame")
     axes[0].legend(fontsize=6)
     axes[0].set_title(f"{label(controller)} — {split} ({f['city'].iloc[0]} city)", fontsize=10)
     fig.tight_layout()
@@ -196,7 +226,8 @@ def nfm_bars(metrics: dict, path: str | os.PathLike, split: str, kind: str = "dy
     ctrls = ordered((metrics.get(split) or {}).keys())
     if not ctrls:
         return False
-    fes = ("orb", "viso", "orb_sumlog", "viso_sumlog")
+    first = metrics[split][ctrls[0]][kind]
+    fes = [fe for fe in first if not fe.endswith("_sumlog")] + [fe for fe in first if fe.endswith("_sumlog")]
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
     width = 0.8 / len(ctrls)
     for a, stat in enumerate(("median_nfm", "min_nfm")):
@@ -204,8 +235,8 @@ def nfm_bars(metrics: dict, path: str | os.PathLike, split: str, kind: str = "dy
             vals = [metrics[split][c][kind][fe][stat] for fe in fes]
             vals = [np.nan if v is None else v for v in vals]
             axes[a].bar(np.arange(len(fes)) + (i - len(ctrls) / 2 + 0.5) * width, vals, width,
-                        color=CONTROLLER_STYLE.get(c, (None,))[0], label=label(c))
-        axes[a].set_xticks(np.arange(len(fes)), ["ORB", "libviso2", "ORB (SL)", "libviso2 (SL)"])
+                        color=controller_style(c)[0], label=label(c))
+        axes[a].set_xticks(np.arange(len(fes)), [frontend_label(fe) for fe in fes])
         axes[a].set_yscale("symlog", linthresh=10)
         axes[a].set_title(f"{split}, {kind} sections: {'median' if stat == 'median_nfm' else 'minimum'} NFM "
                           "(mean over sections)", fontsize=9)

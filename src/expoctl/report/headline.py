@@ -22,7 +22,6 @@ import pandas as pd
 
 HEADLINE_CONTROLLERS = ("learned", "agae")
 HEADLINE_CITIES = ("validation", "test")
-HEADLINE_FRONT_ENDS = ("orb", "viso")
 
 
 def headline_metrics(metrics: dict, runs: pd.DataFrame, val_loss: float | None) -> dict:
@@ -31,8 +30,9 @@ def headline_metrics(metrics: dict, runs: pd.DataFrame, val_loss: float | None) 
     nfm: dict = {}
     for city in HEADLINE_CITIES:
         m = metrics.get(city) or {}
-        per_fe = {fe: {c: m[c]["dynamic"][fe]["min_nfm"] for c in HEADLINE_CONTROLLERS if c in m}
-                  for fe in HEADLINE_FRONT_ENDS}
+        present = [c for c in HEADLINE_CONTROLLERS if c in m]
+        fes = [fe for fe in m[present[0]]["dynamic"] if not fe.endswith("_sumlog")] if present else []
+        per_fe = {fe: {c: m[c]["dynamic"][fe]["min_nfm"] for c in present} for fe in fes}
         if any(per_fe.values()):
             nfm[city] = per_fe
     out["dynamic_min_nfm"] = nfm

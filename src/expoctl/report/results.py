@@ -21,8 +21,7 @@ from expoctl.config_reader import Section
 from expoctl.errors import InputError
 from expoctl.io import atomic_dir
 from expoctl.evaluation.aggregate import validate_metrics
-from expoctl.evaluation.config import CONTROLLER_NAMES
-from expoctl.report.figures import image_strips, label, nfm_bars, ordered, tunnel_timeline
+from expoctl.report.figures import frontend_label, image_strips, label, nfm_bars, ordered, tunnel_timeline
 
 SPLIT_TITLE = {"validation": "validation city (training city, other conditions)", "test": "test city (unseen)"}
 #: the paper's numbers (Tables I–III) to compare shapes with; absolute values differ (real camera, 2048×1536)
@@ -60,7 +59,9 @@ def load_eval(reports_dir: str | os.PathLike) -> tuple[dict, pd.DataFrame, pd.Da
         raise InputError(f"{mpath}: not valid JSON ({exc})") from None
     present = [s for s in ("validation", "test") if s in metrics] if isinstance(metrics, dict) else []
     ctrls = ordered({c for s in present for c in metrics[s]})
-    problems = validate_metrics(metrics, ctrls, present) if present else ["no route split (validation, test)"]
+    fes = metrics_frontends(metrics)
+    problems = (validate_metrics(metrics, ctrls, present, fes) if present and fes is not None
+                else ["no route split (validation, test)" if not present else "no controller entry with front ends"])
     if problems:
         raise InputError(f"{mpath}: does not follow the metrics.json schema: " + "; ".join(problems[:5]))
     tables = []
@@ -79,12 +80,23 @@ def _fmt(v) -> str:
     return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.0f}"
 
 
+def metrics_frontends(metrics: dict) -> list[str] | None:
+    """The raw front ends a metrics.json holds (those of its first entry, in order); None if it has no entry."""
+    for split in ("validation", "test"):
+        for entry in (metrics.get(split) or {}).values() if isinstance(metrics.get(split), dict) else ():
+            kinds = entry.get("dynamic") if isinstance(entry, dict) else None
+            if isinstance(kinds, dict):
+                return [fe for fe in kinds if not fe.endswith("_sumlog")]
+    return None
+
+
 def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bool = False) -> str:
-    """Markdown table: Lighting | Method | Median NFM ORB, libviso2 | Minimum NFM ORB, libviso2."""
+    """Markdown table: Lighting | Method | Median NFM per front end (ORB, libviso2, …) | Minimum NFM per front end."""
     ctrls = ordered(metrics[split])
-    fes = ("orb_sumlog", "viso_sumlog") if sumlog else ("orb", "viso")
-    lines = ["| Lighting | Method | Median NFM ORB | Median NFM libviso2 | Minimum NFM ORB | Minimum NFM libviso2 |",
-             "|---|---|---:|---:|---:|---:|"]
+    raw = metrics_frontends(metrics) or []
+    fes = tuple(f"{fe}_sumlog" for fe in raw) if sumlog else tuple(raw)
+    heads = [f"{stat} NFM {frontend_label(fe)}" for stat in ("Median", "Minimum") for fe in raw]
+    lines = ["| Lighting | Method | " + " | ".join(heads) + " |", "|---|---|" + "---:|" * len(heads)]
     for kind in kinds:
         cols = [(stat, fe) for stat in ("median_nfm", "min_nfm") for fe in fes]
         best = {}
@@ -149,7 +161,7 @@ def vo_margin_table(runs: pd.DataFrame, thresholds=VO_MARGIN_THRESHOLDS, column:
     which that run would still have tracked), as min / median over runs, and the runs of both splits tracked at
     stricter thresholds (a run fails below the threshold)."""
     splits = [s for s in ("validation", "test") if s in set(runs.route_split)]
-    ctrls = [c for c in CONTROLLER_NAMES if c in set(runs.controller)]
+    ctrls = ordered(set(runs.controller))
     head = "| Method | " + " | ".join(f"worst, {s}: min / median over runs" for s in splits) + " | " + \
         " | ".join(f"tracked at ≥ {t}" for t in thresholds) + " |"
     lines = [head, "|---|" + "---:|" * (len(splits) + len(thresholds))]
@@ -167,7 +179,7 @@ def vo_margin_table(runs: pd.DataFrame, thresholds=VO_MARGIN_THRESHOLDS, column:
 def runs_table(runs: pd.DataFrame) -> str:
     """Per window and controller: the frame where VO lost track ("tracked" = throughout), frame to frame and, when
     the runs carry it, against the local map (after the slash)."""
-    ctrls = [c for c in CONTROLLER_NAMES if c in set(runs.controller)]
+    ctrls = ordered(set(runs.controller))
     lines = ["| Window | " + " | ".join(label(c) for c in ctrls) + " |", "|---|" + "---:|" * len(ctrls)]
     for (seq, lab), g in runs.groupby(["sequence", "window_label"], sort=True):
         per = g.set_index("controller")
@@ -186,7 +198,7 @@ def runs_table(runs: pd.DataFrame) -> str:
 
 
 def timing_table(runs: pd.DataFrame) -> str:
-    ctrls = [c for c in CONTROLLER_NAMES if c in set(runs.controller)]
+    ctrls = ordered(set(runs.controller))
     lines = ["| Method | controller update, median (ms) | wall time per frame incl. rendering + matching (s) |",
              "|---|---:|---:|"]
     for c in ctrls:
@@ -205,14 +217,15 @@ def headline(metrics: dict, runs: pd.DataFrame | None = None) -> list[str]:
             continue
         lrn, ag = m["learned"]["dynamic"], m["agae"]["dynamic"]
         parts = []
-        for fe, name in (("orb", "ORB"), ("viso", "libviso2")):
+        fes = [fe for fe in lrn if not fe.endswith("_sumlog")]
+        for fe, name in ((fe, frontend_label(fe)) for fe in fes):
             a, b = lrn[fe]["min_nfm"], ag[fe]["min_nfm"]
             c, d = lrn[fe]["median_nfm"], ag[fe]["median_nfm"]
             parts.append(f"{name} median {_fmt(c)} vs {_fmt(d)}, minimum {_fmt(a)} vs {_fmt(b)}")
         line = f"- {split}, dynamic sections, learned vs AG+AE: " + "; ".join(parts)
         if "oracle" in m:
-            o = m["oracle"]["dynamic"]["orb"]
-            line += f" (oracle ORB median {_fmt(o['median_nfm'])}, minimum {_fmt(o['min_nfm'])})"
+            o = m["oracle"]["dynamic"][fes[0]]
+            line += f" (oracle {frontend_label(fes[0])} median {_fmt(o['median_nfm'])}, minimum {_fmt(o['min_nfm'])})"
         t_l, t_a = m["learned"]["tracking_success"], m["agae"]["tracking_success"]
         line += f"; VO tracking {t_l[0]}/{t_l[1]} vs {t_a[0]}/{t_a[1]}"
         if runs is not None:
@@ -238,17 +251,18 @@ def selection_section(sel: dict) -> list[str]:
     windows = ", ".join(w["sequence"] for w in sel.get("windows", []))
     ref = sel.get("reference") or "the reference"
     md += [f"Every candidate drove the `{sel['city']}` city in closed loop ({windows}), which the evaluation "
-           "never drives:", "",
-           f"| network | VO tracked | dynamic min NFM, ORB | dynamic min NFM, libviso2 | EV above {ref} | clipped "
-           "(median) | score |", "|---|---:|---:|---:|---:|---:|---:|"]
+           "never drives:", ""]
     rows = list(sel["scores"]) + ([sel["reference_statistics"]] if sel.get("reference_statistics") else [])
+    fes = list(rows[0]["dynamic_min_nfm"])
+    md += ["| network | VO tracked | " + "".join(f"dynamic min NFM, {frontend_label(fe)} | " for fe in fes)
+           + f"EV above {ref} | clipped (median) | score |", "|---|---:|" + "---:|" * len(fes) + "---:|---:|---:|"]
     for s in rows:
         d = s["dynamic_min_nfm"]
         name = f"**{s['name']}**" if s["name"] == sel["chosen"] else s["name"]
         off = s.get("median_offset_ev")
         score = s.get("score")
         clip = s.get("median_saturated_frac")
-        md.append(f"| {name} | {s['vo_ok']}/{s['vo_runs']} | {_fmt(d['orb'])} | {_fmt(d['viso'])} | "
+        md.append(f"| {name} | {s['vo_ok']}/{s['vo_runs']} | " + "".join(f"{_fmt(d.get(fe))} | " for fe in fes) +
                   f"{'—' if off is None else f'{off:+.1f}'} | {'—' if clip is None else f'{100 * clip:.0f} %'} | "
                   f"{'—' if score is None else f'{score:.2f}'} |")
     return md + [""]

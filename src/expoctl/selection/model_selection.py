@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -43,15 +43,22 @@ import pandas as pd
 from expoctl.camera.ranges import exposure_value_ev
 from expoctl.errors import ConfigError, InputError
 from expoctl.config_reader import Problems, Section
-from expoctl.evaluation.config import CONTROLLER_NAMES, FRONTENDS, SplitPlan, read_split_plan
+from expoctl.evaluation.config import SplitPlan, read_split_plan
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.parallel import ParallelConfig
 from expoctl.selection.saturation_probe import ProbeConfig
 
 #: route_split label of the selection's windows (it also seeds their traversals and noise, apart from evaluate's)
 SELECT_LABEL = "select"
-#: reference controllers the selection may drive beside the candidates (for its report; never chosen)
-REFERENCES = tuple(c for c in CONTROLLER_NAMES if c not in ("learned", "oracle"))
+
+
+def reference_names() -> tuple[str, ...]:
+    """The controllers the selection may drive beside the candidates, for its report (never chosen): those that
+    need no network and no scene."""
+    from expoctl.controllers.registry import controller_names
+
+    return controller_names(runs_without=("checkpoint", "scene"))
+
 #: the one city no stage before evaluate may see (the validation city already gives train its validation split)
 HELD_OUT_CITY = "test"
 
@@ -72,7 +79,7 @@ class SelectConfig:
         if city == HELD_OUT_CITY:
             r.problem("city", f"{city!r} is the held-out city: selecting on it would let the choice see the city the "
                       "result is reported on (use train or validation)")
-        reference = r.choice("reference", (None,) + REFERENCES, cls.reference)
+        reference = r.choice("reference", (None,) + reference_names(), cls.reference)
         plan = read_split_plan(SELECT_LABEL, r)
         if not r.has("first_traversal"):
             plan = dataclasses.replace(plan, first_traversal=cls.plan.first_traversal)
@@ -109,6 +116,9 @@ def run_statistics(frames: pd.DataFrame, runs: pd.DataFrame, sections: pd.DataFr
     """Closed-loop statistics of one candidate (or the reference) over its runs: VO windows tracked, per raw front
     end the mean dynamic-section minimum and static-section median NFM, the median clipped share, and — when
     `reference` names another candidate in `frames` — the median exposure-product offset from it, frame by frame."""
+    from expoctl.evaluation.aggregate import section_variants
+
+    FRONTENDS = [v for v in section_variants(sections) if not v.endswith("_sumlog")]
     r = runs[runs["candidate"] == name]
     f = frames[frames["candidate"] == name]
     s = sections[sections["run_id"].isin(set(r["run_id"]))]
@@ -133,6 +143,7 @@ def score_candidates(stats: Sequence[dict]) -> list[dict]:
     best candidate's (a front end no candidate has a value for, or whose best is 0, counts 0 for all)."""
     out = []
     best = {}
+    FRONTENDS = list(stats[0]["dynamic_min_nfm"]) if stats else []
     for fe in FRONTENDS:
         vals = [s["dynamic_min_nfm"][fe] for s in stats if s["dynamic_min_nfm"][fe] is not None]
         best[fe] = max(vals) if vals else 0.0
@@ -167,15 +178,15 @@ def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], 
     for c in candidates:
         if not Path(c.path).is_file():
             raise InputError(f"{c.path}: the {c.name} network is missing (run its train stage first)")
-    section = inputs.controller_params("learned")
-    agae = dict(inputs.controller_params("agae"))
+    learned = inputs.controller_config("learned")
+    agae = inputs.controller_config("agae")
     root = str(Path(project_root).resolve())
     if not candidates:
         return {}
     if pcfg.city not in inputs.world.cities:  # before any worker starts (make_probe says it the same way)
         make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, agae, root)
     jobs = [ProbeJob(pcfg, inputs.world, inputs.rig, inputs.sensor, agae, root, c.name,
-                     {**section, "checkpoint": str(Path(c.path).resolve())}) for c in candidates]
+                     replace(learned, checkpoint=str(Path(c.path).resolve()))) for c in candidates]
     return {job.name: result for job, result in run_ordered(probe_job, jobs, inputs.evaluate.n_jobs, parallel)}
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
@@ -190,7 +190,7 @@ class SaturationProbe:
 
 
 def make_probe(pcfg: ProbeConfig, world: "WorldConfig", rig: "RigConfig", sensor: "SensorConfig",
-               agae_params: Mapping, project_root) -> SaturationProbe:
+               agae_params: Any, project_root) -> SaturationProbe:
     """The probe for typed configs a stage built (its world, rig and sensor; `controllers.agae` as given) and its city.
     select_model passes its EvaluationInputs' groups, collect_iter its CollectInputs' ones."""
     from pathlib import Path
@@ -202,7 +202,7 @@ def make_probe(pcfg: ProbeConfig, world: "WorldConfig", rig: "RigConfig", sensor
         raise ConfigError("select_model.probe.city", f"{pcfg.city!r} is not a world.cities entry ({sorted(world.cities)})")
     city_dir = world.city_dir if world.city_dir is not None else "conf/world/cities"
     city = load_city(world.cities[pcfg.city], str(Path(project_root) / city_dir))
-    return SaturationProbe(pcfg, city, rig, world.render, sensor, make_controller("agae", dict(agae_params)))
+    return SaturationProbe(pcfg, city, rig, world.render, sensor, make_controller("agae", agae_params))
 
 
 @dataclass(frozen=True)
@@ -215,10 +215,10 @@ class ProbeJob:
     world: "WorldConfig"
     rig: "RigConfig"
     sensor: "SensorConfig"
-    agae_params: dict
+    agae_params: Any  # controllers.agae, typed (AgAeConfig)
     project_root: str
     name: str
-    learned_params: dict
+    learned_params: Any  # controllers.learned, typed (LearnedConfig) with the candidate's checkpoint
 
 
 _PROBES: dict[bytes, SaturationProbe] = {}  # per process: building a probe drives AG+AE, so each config builds once
@@ -230,11 +230,11 @@ def probe_job(job: ProbeJob) -> dict:
 
     from expoctl.controllers.registry import make_controller
 
-    key = pickle.dumps((job.pcfg, job.world, job.rig, job.sensor, sorted(job.agae_params.items()), job.project_root))
+    key = pickle.dumps((job.pcfg, job.world, job.rig, job.sensor, repr(job.agae_params), job.project_root))
     if key not in _PROBES:
         _PROBES.clear()
         _PROBES[key] = make_probe(job.pcfg, job.world, job.rig, job.sensor, job.agae_params, job.project_root)
-    return _PROBES[key].run(make_controller("learned", dict(job.learned_params)))
+    return _PROBES[key].run(make_controller("learned", job.learned_params))
 
 
 def probe_all(probe: SaturationProbe, controllers: Mapping[str, Callable[[], Controller]]) -> dict[str, dict]:

@@ -8,9 +8,9 @@ the causal controllers).
 from expoctl.sim.closed_loop import (CameraFrame, RenderConfig, RigConfig, RigFrame, RouteScene, drive_rig,
                                      make_sensors, rig_metadata, run_closed_loop)
 from expoctl.sim.collect import derive_seed
-from expoctl.sim.oracle import OracleParams, register_oracle
+from expoctl.sim.oracle import OracleParams
 from expoctl.sim.protocol import PerturbationConfig
 
 __all__ = ["CameraFrame", "OracleParams", "PerturbationConfig", "RenderConfig", "RigConfig", "RigFrame", "RouteScene",
-           "derive_seed", "drive_rig", "make_sensors", "register_oracle", "rig_metadata",
+           "derive_seed", "drive_rig", "make_sensors", "rig_metadata",
            "run_closed_loop"]

@@ -96,7 +96,8 @@ class CollectInputs:
     world: WorldConfig
     rig: RigConfig
     sensor: SensorConfig
-    reference_params: dict  # controllers.<collect.reference_controller>, as given (checked by its factory)
+    reference_config: Any  # controllers.<collect.reference_controller>, typed (None: its name is not a controller)
+    reference_section: dict  # the same section as the config gave it: each sequence's metadata records it
     parallel: ParallelConfig = field(default_factory=ParallelConfig)  # where the sequences render (never what)
 
     @classmethod
@@ -105,10 +106,12 @@ class CollectInputs:
         problems = Problems()
         top = Section(cfg, "", problems)
         ccfg = CollectConfig.from_dict(top.value("collect", None), "collect", problems)
+        controllers = top.section("controllers")
         inputs = cls(ccfg, read_seed(top), WorldConfig.from_dict(top.value("world", None), "world", problems),
                      RigConfig.from_dict(top.value("rig", None), "rig", problems),
                      SensorConfig.from_dict(top.value("sensor", None), "sensor", problems),
-                     controller_params(top.section("controllers"), ccfg.reference_controller),
+                     reference_controller_config(controllers, ccfg.reference_controller, "collect.reference_controller"),
+                     _as_given(controllers.mapping.get(ccfg.reference_controller)),
                      ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems))
         problems.raise_if_any()
         return inputs
@@ -203,7 +206,7 @@ def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | 
     from expoctl.io import atomic_dir
 
     # check before any work what the config groups could not: the reference controller's params, the city names
-    make_controller(inputs.collect.reference_controller, inputs.reference_params)
+    make_controller(inputs.collect.reference_controller, inputs.reference_config)
     jobs = plan_sequences(inputs, project_root)
     out_dir = Path(out_dir)
     summaries: list[dict[str, Any]] = []
@@ -237,7 +240,7 @@ def collect_sequence(inputs: CollectInputs, job: SequenceJob, root: str | os.Pat
     traj = city.traversal(job.traversal, job.traversal_frames, rig.fps, job.traversal_seed)
     scene = RouteScene(city, traj, rig, render)
     sensors, sensor_log = make_sensors(inputs.sensor, render, 2, ccfg.sensor_randomisation, job.seed)
-    controller = make_controller(ccfg.reference_controller, inputs.reference_params)
+    controller = make_controller(ccfg.reference_controller, inputs.reference_config)
     n_total = len(traj.timestamps_ns)
     first = job.warmup_frames
     if n_total - first < 2:
@@ -252,7 +255,7 @@ def collect_sequence(inputs: CollectInputs, job: SequenceJob, root: str | os.Pat
         "split": job.split,
         "traversal": {"index": job.traversal, "seed": job.traversal_seed, "first_recorded_frame": first,
                       "speed_mps": float(traj.speed_mps)},
-        "reference_controller": {"name": ccfg.reference_controller, "params": inputs.reference_params},
+        "reference_controller": {"name": ccfg.reference_controller, "params": inputs.reference_section},
         "seed": job.seed,
         "sections": clip_sections(traj.sections, first, n_total),
         "initial_settings": {"gain_db": ccfg.initial_gain_db, "exposure_us": ccfg.initial_exposure_us},
@@ -303,15 +306,34 @@ def _splits(r: Section) -> dict[str, SplitConfig]:
     return out
 
 
-def controller_params(controllers: Section, name: str) -> dict:
-    """`controllers.<name>` as given (a mapping; {} when absent): the controller's factory checks its keys."""
-    params = controllers.value(name, None)
-    if params is None:
-        return {}
-    if not isinstance(params, dict):
-        controllers.problem(name, f"must be a mapping, got {params!r}")
-        return {}
-    return dict(params)
+def _as_given(section: Any) -> dict:
+    """A config section as given, for the record ({} when absent or not a mapping: that is reported elsewhere)."""
+    return dict(section) if isinstance(section, dict) else {}
+
+
+def reference_controller_config(controllers: Section, name: str | None, key: str) -> Any:
+    """The typed config of the controller `name` that drives camera 1 (`controllers.<name>`, absent: defaults),
+    its problems added to the section's; None if `name` is not a registered controller or needs the simulator's
+    scene (a problem at `key`)."""
+    from expoctl.controllers.registry import CONTROLLERS, controller_names
+
+    if name is None:
+        return None
+    usable = ", ".join(controller_names(runs_without=("scene",)))
+    if name in CONTROLLERS and "scene" in CONTROLLERS.get(name).info.get("needs", ()):
+        controllers.problems.add(key, f"{name!r} cannot drive collect (it renders candidate frames from the "
+                                      f"simulator's scene, which only evaluate gives it); use one of: {usable}")
+        return None
+    if name not in CONTROLLERS:
+        broken = CONTROLLERS.broken().get(name)
+        controllers.problems.add(key, f"unknown controller {name!r} (known: {usable})" if broken is None else
+                                 f"controller plugin {name!r} (package {broken[0]}) is broken: {broken[1]}")
+        return None
+    entry = CONTROLLERS.get(name, key)
+    sub = controllers.section(name)
+    config = sub.read(entry.config)
+    sub.done()
+    return config
 
 
 def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool,

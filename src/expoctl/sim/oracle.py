@@ -43,9 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
-from expoctl.config_reader import Section
+from expoctl.config_reader import param, read_config
 from expoctl.controllers.base import Controller, Settings
-from expoctl.errors import ConfigError
+from expoctl.controllers.registry import ControllerContext, register_controller
 
 _DEFAULT_EXPOSURES_US = tuple(round(EXPOSURE_US_MAX / 2.0**k, 1) for k in range(9))  # 30000 … 117.2 µs, 1 EV apart
 _DEFAULT_GAINS_DB = (6.0, 12.0, 18.0, 24.0, 30.0)  # 6.02 dB ≈ 1 EV of signal
@@ -57,34 +57,21 @@ CANDIDATE_RENDERS = ("full", "match")
 class OracleParams:
     """Config `controllers.oracle`."""
 
-    exposures_us: tuple[float, ...] = _DEFAULT_EXPOSURES_US
-    gains_db: tuple[float, ...] = _DEFAULT_GAINS_DB
-    match_width: int = 320  # ORB working width for the candidate matching (height keeps the aspect ratio)
-    match_nfeatures: int = 1000
-    warmup_frames: int = 10  # evaluate runs the oracle with min(this, evaluate.warmup_frames) warm-up frames
-    objective: str = "hybrid"  # hybrid (docs/controllers.md) | match (issue 7's rule); see the module docstring
-    hybrid_feat_weight: float = 0.5  # hybrid: weight of the feature-best candidate's settings (labels' M_hybrid)
+    exposures_us: tuple[float, ...] = param(_DEFAULT_EXPOSURES_US, min=EXPOSURE_US_MIN, max=EXPOSURE_US_MAX, unit="µs")
+    gains_db: tuple[float, ...] = param(_DEFAULT_GAINS_DB, min=GAIN_DB_MIN, max=GAIN_DB_MAX, unit="dB", empty=True)
+    match_width: int = param(320, min=32)  # ORB working width for the candidate matching (height keeps the aspect)
+    match_nfeatures: int = param(1000, min=10)
+    warmup_frames: int = param(10, min=0)  # evaluate runs the oracle with min(this, evaluate.warmup_frames) warm-up
+    objective: str = param("hybrid", choices=OBJECTIVES)  # hybrid (docs/controllers.md) | match (issue 7's rule)
+    hybrid_feat_weight: float = param(0.5, min=0.0, max=1.0)  # hybrid: weight of the feature-best candidate's settings
     # full: each candidate rendered at the camera's size (then downscaled to match_width for matching); match: at
     # the largest integer fraction of it not below match_width, pixels replicated back to the camera's size so the
     # sensor adds the very noise it adds at full size (module docstring, Cost)
-    candidate_render: str = "full"
+    candidate_render: str = param("full", choices=CANDIDATE_RENDERS)
 
     @classmethod
     def from_dict(cls, d: dict | None, key: str = "controllers.oracle") -> "OracleParams":
-        r = Section(d, key)
-        cfg = cls(
-            exposures_us=r.numbers("exposures_us", cls.exposures_us, min=EXPOSURE_US_MIN, max=EXPOSURE_US_MAX,
-                                   unit="µs"),
-            gains_db=r.numbers("gains_db", cls.gains_db, min=GAIN_DB_MIN, max=GAIN_DB_MAX, unit="dB", empty=True),
-            match_width=r.integer("match_width", cls.match_width, min=32),
-            match_nfeatures=r.integer("match_nfeatures", cls.match_nfeatures, min=10),
-            warmup_frames=r.integer("warmup_frames", cls.warmup_frames, min=0),
-            objective=r.choice("objective", OBJECTIVES, cls.objective),
-            hybrid_feat_weight=r.number("hybrid_feat_weight", cls.hybrid_feat_weight, min=0.0, max=1.0),
-            candidate_render=r.choice("candidate_render", CANDIDATE_RENDERS, cls.candidate_render),
-        )
-        r.done()
-        return cfg
+        return read_config(cls, d, key)
 
     def candidates(self) -> list[Settings]:
         """The ladder: each exposure at 0 dB, then each gain at the longest exposure (duplicates dropped)."""
@@ -239,29 +226,18 @@ def hybrid_settings(feat: Settings, match: Settings, feat_weight: float) -> Sett
     return Settings(float(norm_to_gain(g)), float(norm_to_exposure(e)))
 
 
-def make_oracle(params: dict | None, scene, sensor, seed: int, n_frames: int, first_frame: int = 0,
+def make_oracle(params: dict | OracleParams | None, scene, sensor, seed: int, n_frames: int, first_frame: int = 0,
                 camera: int = 1) -> OracleController:
-    """The oracle from its config section plus the simulator objects it needs."""
-    return OracleController(scene, sensor, seed, n_frames, first_frame, OracleParams.from_dict(params), camera)
+    """The oracle from its config (or config section) plus the simulator objects it needs."""
+    config = params if isinstance(params, OracleParams) else OracleParams.from_dict(params)
+    return OracleController(scene, sensor, seed, n_frames, first_frame, config, camera)
 
 
-_RUNTIME_KEYS = ("scene", "sensor", "seed", "n_frames", "first_frame")
+def _build_oracle(config: OracleParams, context: ControllerContext) -> Controller:
+    """Registry factory: the oracle over the context's scene, sensor and frames (evaluate builds it so)."""
+    return make_oracle(config, context.scene, context.sensor, context.seed, context.n_frames, context.first_frame)
 
 
-def _factory(params: dict) -> Controller:
-    """Registry factory: config keys plus the runtime keys scene, sensor, seed, n_frames (first_frame optional)."""
-    params = dict(params)
-    missing = [k for k in ("scene", "sensor", "seed", "n_frames") if k not in params]
-    if missing:
-        raise ConfigError("controllers.oracle", "the oracle renders candidate frames, so it only runs inside the "
-                          "simulator (expoctl.evaluation.runner builds it with the scene and sensor); missing "
-                          + ", ".join(missing))
-    rt = {k: params.pop(k) for k in _RUNTIME_KEYS if k in params}
-    return make_oracle(params, rt["scene"], rt["sensor"], rt["seed"], rt["n_frames"], rt.get("first_frame", 0))
-
-
-def register_oracle() -> None:
-    """Add "oracle" to `expoctl.controllers.registry` (explicit: it cannot be built from its YAML section alone)."""
-    from expoctl.controllers.registry import register
-
-    register("oracle", _factory)
+# registered here, beside the oracle: the controller registry imports this module with its own (plugins.Registry)
+register_controller("oracle", config=OracleParams, factory=_build_oracle, needs=("scene",), label="Oracle",
+                    colour="#2ca02c", rank=70)(OracleController)

@@ -15,6 +15,7 @@ from time import perf_counter, process_time
 import numpy as np
 
 from expoctl.errors import InputError
+from expoctl.features.registry import register_frontend
 from expoctl.features.viso.descriptors import descriptors
 from expoctl.features.viso.filters import blob_corner, half_resolution, sobel_du_dv
 from expoctl.features.viso.match import FeatureSet, Grid, circle_match, flow_prior, make_feature_set, refine_integer
@@ -164,13 +165,14 @@ def pair_counts(prev: VisoFeatures, cur: VisoFeatures, seed: int, params: dict |
     )
 
 
+@register_frontend("viso", config=VisoParams, label="libviso2", long_label="libviso2-style", rank=20)
 class VisoFrontEnd:
     """libviso2-style front end (FrontEnd protocol). params: the `features.viso` config dict (see viso.params)."""
 
     name = "viso"
 
-    def __init__(self, params: dict | None = None):
-        self.params = parse_params(params)
+    def __init__(self, params: VisoParams | dict | None = None):
+        self.params = params if isinstance(params, VisoParams) else parse_params(params)
 
     def extract(self, grey: np.ndarray, timings: dict[str, float] | None = None) -> VisoFeatures:
         return extract_features(grey, self.params, timings)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from expoctl.config_reader import Section, is_integer
+from expoctl.config_reader import Section, is_integer, read_config
 from expoctl.errors import ConfigError
 
 #: Border (in pixels at matching resolution) inside which no feature is detected; libviso2 fixes it to 8+1.
@@ -30,6 +30,11 @@ class VisoParams:
     bucket_height: int = 50  # px
     ransac_iters: int = 2000
     inlier_threshold: float = 1e-5  # Sampson error in Hartley-normalised coordinates
+
+    @classmethod
+    def from_section(cls, r: Section) -> "VisoParams":
+        """The keys of section `r` (`features.viso`; libviso2's 0/1 switches accepted); the caller calls `done()`."""
+        return _read_viso(r)
 
     @property
     def sparse_nms_n(self) -> int:
@@ -59,7 +64,11 @@ def parse_params(params: dict | None) -> VisoParams:
     once (ConfigError)."""
     if params is not None and not isinstance(params, dict):
         raise ConfigError("features.viso", f"must be a mapping, got {type(params).__name__}")
-    r = Section(params, "features.viso")
+    return read_config(VisoParams, params, "features.viso")
+
+
+def _read_viso(r: Section) -> VisoParams:
+    """The keys of section `r` (`features.viso`); the caller calls `r.done()`."""
     d = VisoParams
     refinement = r.integer("refinement", d.refinement, min=0, max=2)
     if refinement == 2:
@@ -80,5 +89,5 @@ def parse_params(params: dict | None) -> VisoParams:
         ransac_iters=r.integer("ransac_iters", d.ransac_iters, min=1),
         inlier_threshold=r.number("inlier_threshold", d.inlier_threshold, above=0),
     )
-    r.done()
     return out
+
