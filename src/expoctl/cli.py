@@ -23,10 +23,10 @@ SUBCOMMANDS = {
     "validate": ("expoctl.raw.validate_cli", "check raw dual-camera sequences"),
     "match": ("expoctl.features.match_cli", "count features and inlier matches of one image pair"),
     "preview": ("expoctl.sim.preview", "render a route under a controller to a contact sheet"),
-    "drive": ("expoctl.cameras.drive_cli", "drive a real camera in closed loop with a controller"),
-    "record": ("expoctl.cameras.record_cli", "record dual-camera training data on two real cameras"),
-    "cameras": ("expoctl.cameras.list_cli", "list the cameras found"),
-    "latency": ("expoctl.cameras.latency_cli", "measure a camera's actuation delay from its images"),
+    "drive": ("expoctl.hardware.drive_cli", "drive a real camera in closed loop with a controller"),
+    "record": ("expoctl.hardware.record_cli", "record dual-camera training data on two real cameras"),
+    "cameras": ("expoctl.hardware.list_cli", "list the cameras found"),
+    "latency": ("expoctl.hardware.latency_cli", "measure a camera's actuation delay from its images"),
 }
 
 

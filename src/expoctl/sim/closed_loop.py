@@ -9,7 +9,7 @@ So nothing computed from frame t can change frame t itself — the loop enforces
 
 The loop itself (`drive_rig`) knows nothing of where frames come from: a `Rig` captures one frame per camera with
 the settings it is given and reports the settings each frame was actually exposed with. The simulator's rig
-(`SimRig`: scene + sensors) reports exactly what it was given; a real camera rig (`expoctl.cameras.live.LiveRig`)
+(`SimRig`: scene + sensors) reports exactly what it was given; a real camera rig (`expoctl.hardware.live.LiveRig`)
 reports what the camera's metadata says, which may lag the command. Controllers always see the reported settings.
 
 Randomness: sensor noise for (camera c, frame t) comes from a generator seeded by (seed, c, t), so a frame's

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from expoctl.cameras.base import (
+from expoctl.hardware.base import (
     Camera,
     CameraError,
     CameraInfo,
@@ -17,7 +17,7 @@ from expoctl.cameras.base import (
     effective_limits,
     to_rgb8,
 )
-from expoctl.cameras.live import ActuationDelay, LiveRig
+from expoctl.hardware.live import ActuationDelay, LiveRig
 from expoctl.controllers.base import Controller, Settings
 from expoctl.sim.closed_loop import drive_rig
 from expoctl.sim.protocol import PerturbationConfig, perturb
@@ -188,7 +188,7 @@ def test_live_rig_retriggers_a_mispaired_frame_then_gives_up_naming_both_cameras
 
 
 def test_controller_config_for_a_camera(tmp_path):
-    from expoctl.cameras.session import camera_controller_names, controller_config, make_camera_controller
+    from expoctl.hardware.session import camera_controller_names, controller_config, make_camera_controller
     from expoctl.controllers.agae import AgAeConfig
     from expoctl.errors import InputError
 
@@ -222,7 +222,7 @@ def test_controller_config_for_a_camera(tmp_path):
 
 
 def test_background_writer_keeps_order_and_reports_a_write_error(tmp_path):
-    from expoctl.cameras.session import BackgroundWriter
+    from expoctl.hardware.session import BackgroundWriter
     from expoctl.raw.format import SequenceWriter
 
     img = np.zeros((4, 6, 3), np.uint8)

@@ -13,7 +13,7 @@ GenICam feature names differ between cameras; this backend looks for, in order:
 - auto exposure / auto gain (`ExposureAuto`, `GainAuto`) are switched off, so the controller is the only one acting;
 - per-frame metadata: chunk data (`ChunkModeActive`, `ChunkSelector` ExposureTime and Gain → `ChunkExposureTime`,
   `ChunkGain`; the Blackfly S has them) when the camera offers both; otherwise the registers are read back right after
-  each frame arrives (`expoctl.cameras.base`, "settings_source": what that means for measured delays).
+  each frame arrives (`expoctl.hardware.base`, "settings_source": what that means for measured delays).
 
 Discovery note: opening a camera by id runs Aravis' device discovery, which on GigE Vision sends a discovery
 broadcast on every network interface of the machine (that is how GigE Vision finds cameras).
@@ -24,7 +24,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from expoctl.cameras.base import (
+from expoctl.hardware.base import (
     SUPPORTED_PIXEL_FORMATS,
     Camera,
     CameraError,

@@ -14,10 +14,10 @@ __all__ = ["BACKENDS", "open_camera"]
 def open_camera(camera_id: str, backend: str = "aravis", **options):
     """Open the camera `camera_id` with `backend` (options: width, height, pixel_format, frame_rate_hz,
     gain_db_per_raw); raises CameraError naming the camera if it cannot."""
-    from expoctl.cameras.base import CameraError
+    from expoctl.hardware.base import CameraError
 
     if backend == "aravis":
-        from expoctl.cameras.aravis import AravisCamera
+        from expoctl.hardware.aravis import AravisCamera
 
         return AravisCamera(camera_id, **options)
     raise CameraError(f"camera backend {backend!r} is unknown (available: {', '.join(BACKENDS)})")

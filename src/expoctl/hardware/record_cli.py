@@ -14,12 +14,12 @@ import argparse
 import sys
 from contextlib import ExitStack
 
-from expoctl.cameras.cli_common import add_camera_options, check_numbers, describe, open_cameras
+from expoctl.hardware.cli_common import add_camera_options, check_numbers, describe, open_cameras
 from expoctl.errors import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from expoctl.cameras.session import camera_controller_names
+    from expoctl.hardware.session import camera_controller_names
 
     parser.add_argument("--camera1", required=True, help="reference camera id (device id, serial or IP address)")
     parser.add_argument("--camera2", required=True, help="perturbed camera id")
@@ -38,12 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of camera 2's perturbation draws (default 0)")
     parser.add_argument("--pair-tolerance-ms", type=float, default=10.0,
                         help="largest receive-time difference of a frame pair (default 10 ms; module doc of "
-                             "expoctl.cameras.live)")
+                             "expoctl.hardware.live)")
     add_camera_options(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from expoctl.cameras import session
+    from expoctl.hardware import session
 
     check_numbers(args)
     problems = []

@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Sequence
 
-from expoctl.cameras.base import Camera, CameraError, Frame, Limits
+from expoctl.hardware.base import Camera, CameraError, Frame, Limits
 from expoctl.controllers.base import Settings
 from expoctl.sim.closed_loop import CameraFrame, RigFrame
 

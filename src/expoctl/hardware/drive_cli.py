@@ -14,11 +14,11 @@ import argparse
 import sys
 from contextlib import ExitStack
 
-from expoctl.cameras.cli_common import add_camera_options, check_numbers, describe, open_cameras
+from expoctl.hardware.cli_common import add_camera_options, check_numbers, describe, open_cameras
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from expoctl.cameras.session import camera_controller_names
+    from expoctl.hardware.session import camera_controller_names
 
     parser.add_argument("--camera", required=True, help="camera id: Aravis device id, serial number or IP address")
     parser.add_argument("--controller", required=True, choices=camera_controller_names())
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from expoctl.cameras import session
+    from expoctl.hardware import session
     from expoctl.controllers.base import Settings
 
     check_numbers(args)
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if s["actuation_delays_measured"]:
         lag = (f"actuation delay {delay['median']:g} camera frames median (max {delay['max']:g}) over "
                f"{s['actuation_delays_measured']} setting changes, from {source}"
-               f"{' (register read-back: a lower bound, see expoctl.cameras.base)' if source == 'readback' else ''}")
+               f"{' (register read-back: a lower bound, see expoctl.hardware.base)' if source == 'readback' else ''}")
     else:
         lag = "actuation delay not measured (no setting change large enough to see)"
     print(f"drive: {res.n_frames} frames ({res.stopped}), loop {s['loop_hz']} Hz; controller {ms['median']} ms median, "

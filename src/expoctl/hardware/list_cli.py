@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from expoctl.cameras import BACKENDS
+from expoctl.hardware import BACKENDS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -12,7 +12,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from expoctl.cameras.aravis import list_cameras
+    from expoctl.hardware.aravis import list_cameras
 
     found = list_cameras()
     if not found:

@@ -4,7 +4,7 @@
 
 Per step it prints after how many camera frames the image's brightness moved and after how many the frame's
 metadata (chunk data or register read-back) showed the new exposure; with read-back the second is only a lower
-bound (expoctl.cameras.latency).
+bound (expoctl.hardware.latency).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import argparse
 import json
 from contextlib import ExitStack
 
-from expoctl.cameras.cli_common import add_camera_options, check_numbers, describe, open_cameras
+from expoctl.hardware.cli_common import add_camera_options, check_numbers, describe, open_cameras
 from expoctl.errors import InputError
 
 
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from expoctl.cameras.latency import measure_delay, summarise
+    from expoctl.hardware.latency import measure_delay, summarise
 
     check_numbers(args)
     if args.steps < 1:

@@ -1,6 +1,6 @@
 """Settings every emulated-camera test uses (a module of its own: `conftest` is not importable by a unique name)."""
 
-#: how the emulator's raw gain maps to dB for expoctl (see expoctl.cameras.aravis: 6 dB ≈ its brightness per step)
+#: how the emulator's raw gain maps to dB for expoctl (see expoctl.hardware.aravis: 6 dB ≈ its brightness per step)
 GAIN_DB_PER_RAW = 6.0
 
 

@@ -6,8 +6,8 @@ import argparse
 import math
 from contextlib import ExitStack
 
-from expoctl.cameras import BACKENDS, open_camera
-from expoctl.cameras.base import Camera, CameraError, Limits, UserLimits, effective_limits
+from expoctl.hardware import BACKENDS, open_camera
+from expoctl.hardware.base import Camera, CameraError, Limits, UserLimits, effective_limits
 from expoctl.errors import InputError
 
 
@@ -53,7 +53,7 @@ def open_cameras(stack: ExitStack, ids: list[str], args: argparse.Namespace) -> 
     user = UserLimits(args.gain_min_db, args.gain_max_db, args.exposure_min_us, args.exposure_max_us)
     out, problems = [], []
     if len(ids) > 1 and args.backend == "aravis":  # one camera named twice (serial and address, say)
-        from expoctl.cameras.aravis import list_cameras, resolve_camera_id
+        from expoctl.hardware.aravis import list_cameras, resolve_camera_id
 
         found = list_cameras()
         resolved = {}

@@ -1,7 +1,7 @@
 """Actuation delay measured from the images themselves: exposure steps in front of a static scene.
 
 Why: a camera without chunk data reports its settings by register read-back, which shows a command as soon as it is
-written — so the delay `drive` measures from that metadata is a lower bound (`expoctl.cameras.base`). The image
+written — so the delay `drive` measures from that metadata is a lower bound (`expoctl.hardware.base`). The image
 cannot lie: command a step in exposure, and count the camera's frames until the image's brightness moves.
 
 Per step (free-running, every frame taken, none skipped):
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from expoctl.cameras.base import Camera, CameraError, Limits
-from expoctl.cameras.live import same_settings
+from expoctl.hardware.base import Camera, CameraError, Limits
+from expoctl.hardware.live import same_settings
 from expoctl.controllers.base import Settings
 
 

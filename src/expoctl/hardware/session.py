@@ -24,8 +24,8 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from expoctl.cameras.base import Camera, CameraError, Limits
-from expoctl.cameras.live import LiveRig
+from expoctl.hardware.base import Camera, CameraError, Limits
+from expoctl.hardware.live import LiveRig
 from expoctl.controllers.base import Controller, Settings, TimedController
 from expoctl.errors import ConfigError, InputError
 from expoctl.sim.closed_loop import RigFrame, drive_rig
