@@ -293,7 +293,7 @@ def _light_map_errors(city_name, n=20000, seed=1):
                 th = a0 + (math.pi - 2 * a0) * q
                 v, w, nv, nw, surf = rho * math.cos(th), c + rho * math.sin(th), -math.cos(th), -math.sin(th), dl.LM_CEIL
             exact = dl.opening_factors_inline(hw, wall_h, crown_h, c, rho, x, tl - x, v, w, nv, nw)
-            mapped = dl.light_map_factors(table, surf, hw, wall_h, crown_h, c, rho, tl, x, v, w, nv, nw)
+            mapped = dl.light_map_factors(r.light_map, tid, surf, hw, wall_h, crown_h, c, rho, tl, x, v, w, nv, nw)
             e = [math.pi * ((f0 - g0) * lum[0, 0] + g0 * lum[0, 1] + (f1 - g1) * lum[1, 0] + g1 * lum[1, 1])
                  for f0, f1, g0, g1 in (exact, mapped)]
             errors.append(abs(e[1] - e[0]) / e[0])

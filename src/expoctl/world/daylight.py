@@ -248,11 +248,12 @@ def opening_factors_inline(hw, wall_h, crown_h, arc_c, arc_r, x0, x1, v, w, nv, 
 # The configuration factors depend only on the surface point, not on the frame: a table per tunnel, built once, read
 # by the kernel instead of the per-pixel integral when world.render.portal_daylight is light_map (its registered
 # error bound and measurements: docs/simulator.md). Per surface (LM_ROAD, LM_WALL: both walls by mirror symmetry,
-# LM_CEIL: box ceiling or arch), a grid over u = log(1 + X/LIGHT_MAP_A_M) (X: axial distance to the portal; F falls
-# steeply near the portal and as ~1/X² far from it, so uniform steps in u keep the relative step in X bounded) and
-# over the position across the surface; values (F, G) of one opening at distance X — both portals read the same table.
+# LM_CEIL: box ceiling or arch), a grid uniform in √X (X: axial distance to the portal; F changes fastest near the
+# portal and falls as ~1/X² far from it: the relative step in X, 2·Δ√X/√X, shrinks as F flattens; a square root per
+# lookup, where log(1 + X/a) cost three logarithms per pixel and most of the map's gain) and over the position
+# across the surface; values (F, G) of one opening at distance X — both portals read the same table.
 LM_ROAD, LM_WALL, LM_CEIL = 0, 1, 2
-LIGHT_MAP_NX, LIGHT_MAP_NP, LIGHT_MAP_A_M = 512, 129, 0.05
+LIGHT_MAP_NX, LIGHT_MAP_NP = 512, 129
 LIGHT_MAP_EXACT_M = 1.0  # nearer a portal plane than this: the exact integral (light_map_factors)
 NO_LIGHT_MAP = np.zeros((0, 3, 2, 2, 2))  # no tunnel rows: the kernel integrates per pixel (the exact path)
 
@@ -265,7 +266,7 @@ def _arch_a0(hw, wall_h, arc_c):
 @njit(cache=True)
 def _fill_light_map(out, hw, wall_h, crown_h, arc_c, arc_r, length):
     nx, npos = out.shape[1], out.shape[2]
-    du = math.log1p(length / LIGHT_MAP_A_M) / (nx - 1)
+    ds = math.sqrt(length) / (nx - 1)
     a0 = _arch_a0(hw, wall_h, arc_c)
     for surf in range(3):
         for ip in range(npos):
@@ -280,7 +281,7 @@ def _fill_light_map(out, hw, wall_h, crown_h, arc_c, arc_r, length):
                 th = a0 + (math.pi - 2.0 * a0) * q
                 v, w, nv, nw = arc_r * math.cos(th), arc_c + arc_r * math.sin(th), -math.cos(th), -math.sin(th)
             for ix in range(nx):
-                x = LIGHT_MAP_A_M * math.expm1(ix * du)
+                x = (ix * ds) ** 2
                 f, _, g, _ = opening_factors_inline(hw, wall_h, crown_h, arc_c, arc_r, x, x, v, w, nv, nw)
                 out[surf, ix, ip, 0] = f
                 out[surf, ix, ip, 1] = g
@@ -302,31 +303,33 @@ def light_map(seg: np.ndarray, n_tunnels: int) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def _light_map_at(table, surf, du, x, q):
-    """Bilinear (F, G) of table[surf] (one tunnel's) at axial distance x and surface position q ∈ [0, 1]."""
-    nx, npos = table.shape[1], table.shape[2]
-    fu = min(math.log1p(max(x, 0.0) / LIGHT_MAP_A_M) / du, nx - 1.0)
+def _light_map_at(table, tid, surf, inv_ds, x, q):
+    """Bilinear (F, G) of table[tid, surf] at axial distance x and surface position q ∈ [0, 1] (inv_ds: 1 / the
+    grid's step in √X). Indexes the whole table: a slice per pixel would be a new array object in the pixel loop."""
+    nx, npos = table.shape[2], table.shape[3]
+    fu = min(math.sqrt(max(x, 0.0)) * inv_ds, nx - 1.0)
     ix = min(int(fu), nx - 2)
     tx = fu - ix
     fp = min(max(q, 0.0), 1.0) * (npos - 1)
     ip = min(int(fp), npos - 2)
     tp = fp - ip
-    f = ((1 - tx) * ((1 - tp) * table[surf, ix, ip, 0] + tp * table[surf, ix, ip + 1, 0])
-         + tx * ((1 - tp) * table[surf, ix + 1, ip, 0] + tp * table[surf, ix + 1, ip + 1, 0]))
-    g = ((1 - tx) * ((1 - tp) * table[surf, ix, ip, 1] + tp * table[surf, ix, ip + 1, 1])
-         + tx * ((1 - tp) * table[surf, ix + 1, ip, 1] + tp * table[surf, ix + 1, ip + 1, 1]))
+    f = ((1 - tx) * ((1 - tp) * table[tid, surf, ix, ip, 0] + tp * table[tid, surf, ix, ip + 1, 0])
+         + tx * ((1 - tp) * table[tid, surf, ix + 1, ip, 0] + tp * table[tid, surf, ix + 1, ip + 1, 0]))
+    g = ((1 - tx) * ((1 - tp) * table[tid, surf, ix, ip, 1] + tp * table[tid, surf, ix, ip + 1, 1])
+         + tx * ((1 - tp) * table[tid, surf, ix + 1, ip, 1] + tp * table[tid, surf, ix + 1, ip + 1, 1]))
     return f, g
 
 
 @njit(cache=True, inline="always")
-def light_map_factors(table, surf, hw, wall_h, crown_h, arc_c, arc_r, length, x, v, w, nv, nw):
-    """(F0, F1, G0, G1) as opening_factors_inline returns them, from one tunnel's light map (table: (3, NX, NP, 2)),
+def light_map_factors(table, tid, surf, hw, wall_h, crown_h, arc_c, arc_r, length, x, v, w, nv, nw):
+    """(F0, F1, G0, G1) as opening_factors_inline returns them, from tunnel tid's light map (table: light_map's),
     for a point at (v, w), normal (0, nv, nw), on surface surf (LM_ROAD, LM_WALL, LM_CEIL) at x from the tunnel's
-    start. Within LIGHT_MAP_EXACT_M of either portal plane the exact integral: there F changes within a few cm of
-    the cross-section's corners (from ½ on the road to ¼ at its edge as X → 0), finer than the table resolves
-    (measured: up to 17 % off at X = 2 cm, ≤ 0.19 % from X = 0.3 m; tests/world/test_daylight.py)."""
-    if x < LIGHT_MAP_EXACT_M or length - x < LIGHT_MAP_EXACT_M:
-        return opening_factors_inline(hw, wall_h, crown_h, arc_c, arc_r, x, length - x, v, w, nv, nw)
+    start. The exact integral instead:
+    - within LIGHT_MAP_EXACT_M of either portal plane: there F changes within a few cm of the cross-section's corners
+      (from ½ on the road to ¼ at its edge as X → 0), finer than the table resolves (measured with a log grid: up to
+      17 % off at X = 2 cm, ≤ 0.19 % from X = 0.3 m);
+    - for points off the surface's extent (a wall hit below the road or a ceiling hit beyond the walls: the ray caster
+      meets such points where a curved tunnel's straight segments join; measured up to 4× off when clamped)."""
     if surf == LM_ROAD:
         q = (v + hw) / (2.0 * hw)
     elif surf == LM_WALL:
@@ -336,7 +339,9 @@ def light_map_factors(table, surf, hw, wall_h, crown_h, arc_c, arc_r, length, x,
     else:
         a0 = _arch_a0(hw, wall_h, arc_c)
         q = (math.atan2(w - arc_c, v) - a0) / (math.pi - 2.0 * a0)
-    du = math.log1p(length / LIGHT_MAP_A_M) / (table.shape[1] - 1)
-    f0, g0 = _light_map_at(table, surf, du, x, q)
-    f1, g1 = _light_map_at(table, surf, du, length - x, q)
+    if x < LIGHT_MAP_EXACT_M or length - x < LIGHT_MAP_EXACT_M or not 0.0 <= q <= 1.0:
+        return opening_factors_inline(hw, wall_h, crown_h, arc_c, arc_r, x, length - x, v, w, nv, nw)
+    inv_ds = (table.shape[2] - 1) / math.sqrt(length)
+    f0, g0 = _light_map_at(table, tid, surf, inv_ds, x, q)
+    f1, g1 = _light_map_at(table, tid, surf, inv_ds, length - x, q)
     return f0, f1, g0, g1

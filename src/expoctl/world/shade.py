@@ -201,7 +201,7 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
             # above and below the point's height each with the luminance seen out of the portal upward / downward
             if light_map.shape[0] > 0:
                 surf = LM_ROAD if code == rc.GROUND else (LM_WALL if code == rc.TWALL else LM_CEIL)
-                f0, f1, g0, g1 = light_map_factors(light_map[tid], surf, seg[j, rt.HW], seg[j, rt.WALL_H],
+                f0, f1, g0, g1 = light_map_factors(light_map, tid, surf, seg[j, rt.HW], seg[j, rt.WALL_H],
                                                    seg[j, rt.CROWN_H], seg[j, rt.ARC_C], seg[j, rt.ARC_R], tl, x, v,
                                                    w, nv, nw)
             else:
