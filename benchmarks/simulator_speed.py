@@ -106,8 +106,12 @@ def _baseline_sensor(sensor_mod, width, height):
 
 
 # per camera-frame columns of the --baseline comparison: sharp render (wall, CPU), render + 5 ms fast blur (incl.
-# glare), sensor capture of that, and the whole frame (blurred render + sensor)
-FRAME_COLUMNS = ("render_sharp", "render_sharp_cpu", "render_blur_5ms", "sensor", "frame_5ms")
+# glare, sensor capture of that, and the whole frame (blurred render + sensor); then, per SMEAR_EXPOSURES_US, the fast
+# blur alone (its sharp render cached): most of a frame's smears in evaluate, where every controller and oracle
+# candidate smears the frame's render at its own exposure, and the short ones barely move
+SMEAR_EXPOSURES_US = (75.0, 300.0, 1000.0, 5000.0)
+FRAME_COLUMNS = ("render_sharp", "render_sharp_cpu", "render_blur_5ms", "sensor", "frame_5ms",
+                 *(f"smear_{e:g}us" for e in SMEAR_EXPOSURES_US))
 
 
 def _time_frame(renderer, traj, sensor, k):
@@ -125,8 +129,14 @@ def _time_frame(renderer, traj, sensor, k):
         t = time.perf_counter()
         img = sensor.capture(blurred, 5000.0, 6.0, np.random.default_rng(int(k)))
         cap = time.perf_counter() - t
-    return ((sharp, sharp_cpu, blur, cap, blur + cap),
-            ((lum, depth), (blurred,), None if img is None else (img,)))
+    smears, smeared = [], []
+    for exp_us in SMEAR_EXPOSURES_US:  # the sharp render at this exposure's mid-point, then the smear (+ glare) alone
+        renderer.render_exposure(traj, int(k), exp_us)
+        t = time.perf_counter()
+        smeared.append(renderer.render_exposure(traj, int(k), exp_us))
+        smears.append(time.perf_counter() - t)
+    return ((sharp, sharp_cpu, blur, cap, blur + cap, *smears),
+            ((lum, depth), (blurred, *smeared), None if img is None else (img,)))
 
 
 def _max_rel(a, b):
