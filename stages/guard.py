@@ -5,8 +5,9 @@ when it restores it), so anything a user put inside one — typically a real rig
 which is the `collect` stage's output — would be deleted without a word. DVC has no hook before it touches outputs,
 so this stage runs first on every `dvc repro` (`always_changed`, and `compose`, the root of every other stage,
 depends on its stamp file), looks at every directory output, and stops the run with exit code 2 naming each foreign
-path before any stage has run. It writes nothing but its stamp, whose content never changes, so it never makes
-another stage re-run.
+path before any stage has run. It writes its stamp, whose content never changes, and the list of installed plugins
+(`configs/plugins.yaml`), which changes only when a plugin package is installed, removed or upgraded: only then does
+another stage re-run because of it.
 
 What counts as foreign in a directory output:
 - the stage ran before (dvc.lock has its `.dir` hash): every file not in that directory's manifest in the DVC cache;
@@ -27,6 +28,9 @@ from stages.dvcfile import declared_outputs, dir_manifest, locked_outputs
 from stages.project import PROJECT_ROOT, RECORDINGS_DIR
 
 GUARD_STAMP = Path("configs") / "guard.ok"
+#: the installed plugins (stages/table.py recorded_plugins): compose depends on it, so a plugin installed, removed
+#: or upgraded re-runs compose, whose resolved config records them for the stages that build plugins
+PLUGINS_FILE = Path("configs") / "plugins.yaml"
 STAMP_TEXT = "# written by stages/guard.py when no DVC output held foreign files; its content never changes\n"
 _RAW_OUTPUTS = ("data/raw",)  # prefixes: data/raw, data/raw_iter2, …
 _SHOWN = 8
@@ -126,7 +130,24 @@ def main(root: Path = PROJECT_ROOT) -> int:
     stamp = root / GUARD_STAMP
     if not stamp.is_file() or stamp.read_text() != STAMP_TEXT:
         write_text(STAMP_TEXT, stamp)
+    write_plugins(root / PLUGINS_FILE)
     return 0
+
+
+def plugins_text() -> str:
+    from stages.table import recorded_plugins
+
+    return ("# written by stages/guard.py: the installed expoctl plugins (entry points), read without importing them\n"
+            + yaml.safe_dump(recorded_plugins(), sort_keys=True))
+
+
+def write_plugins(path: Path) -> None:
+    """The installed plugins' list, rewritten only when it changed (DVC hashes content; nothing else re-runs)."""
+    from expoctl.io import write_text
+
+    text = plugins_text()
+    if not path.is_file() or path.read_text() != text:
+        write_text(text, path)
 
 
 if __name__ == "__main__":

@@ -92,17 +92,22 @@ COPIED = "copied when the iteration is disabled (stages/common.py COPIED_WHEN_DI
 ROLLOUT_KEYS = ("seed", "sensor", "world", "rig")
 
 STAGES: tuple[Stage, ...] = (
-    Stage("guard", outs=(Out("configs/guard.ok", cache=False),), always_changed=True, comment=(
-        "Runs first on every `dvc repro` and stops it when a DVC output directory holds files no stage wrote (a real "
-        "recording put under data/raw, say), before DVC could delete them (stages/guard.py). It writes only its "
-        "stamp, whose content never changes, so it never makes another stage re-run.")),
-    Stage("compose", deps=("configs/guard.ok",), whole_params=("params.yaml",),
+    Stage("guard", outs=(Out("configs/guard.ok", cache=False), Out("configs/plugins.yaml", cache=False)),
+          always_changed=True, comment=(
+              "Runs first on every `dvc repro` and stops it when a DVC output directory holds files no stage wrote (a "
+              "real recording put under data/raw, say), before DVC could delete them (stages/guard.py). Its stamp "
+              "never changes; configs/plugins.yaml (the installed plugins' entry points) changes only when a plugin "
+              "package is installed, removed or upgraded, and then compose re-runs and records them.")),
+    Stage("compose", deps=("configs/guard.ok", Dep("configs/plugins.yaml", "the installed plugins, recorded as "
+                                                                            "`plugins` in the resolved config")),
+          whole_params=("params.yaml",),
           outs=(Out("configs/resolved.yaml", cache=False),), comment=(
               "conf/ + params.yaml `overrides` -> configs/resolved.yaml, every key checked (stages/config_check.py); "
               "it tracks all of params.yaml, so a key other than `overrides` (what `dvc exp run -S train.lr=...` "
               "adds) reaches it and is refused.")),
     Stage("collect",
-          keys=(*ROLLOUT_KEYS, "collect", "collect_controllers.{block}", "paths.raw_dir", "parallel"),
+          keys=(*ROLLOUT_KEYS, "collect", "collect_controllers.{block}", "plugins.controllers", "paths.raw_dir",
+                "parallel"),
           deps=(Dep("data/recordings", "collect.source: recordings copies these; never an output (stages/guard.py)",
                     first_only=True),),
           outs=(Out("{raw_dir}"),),
@@ -119,12 +124,13 @@ STAGES: tuple[Stage, ...] = (
     Stage("ingest", keys=("ingest", "paths.raw_dir", "paths.frames", "paths.images_dir"),
           deps=("{raw_dir}",), outs=(Out("{frames}"), Out("{images_dir}")),
           iterated=True, later_deps=(Dep("{prev_frames}", COPIED), "{prev_images_dir}", EARLIER_RAW)),
-    Stage("features", keys=("features", "paths.frames", "paths.features", "paths.matches", "parallel"),
+    Stage("features", keys=("features", "plugins.frontends", "paths.frames", "paths.features", "paths.matches",
+                            "parallel"),
           deps=("{frames}", "{raw_dir}"), outs=(Out("{features}"), Out("{matches}")),
           iterated=True, later_deps=(Dep("{prev_frames}", "the previous iteration's counts are reused"),
                                      "{prev_features}", "{prev_matches}", EARLIER_RAW)),
-    Stage("labels", keys=("labels", "paths.frames", "paths.features", "paths.matches", "paths.labels",
-                          "paths.reports_dir"),
+    Stage("labels", keys=("labels", "plugins.frontends", "paths.frames", "paths.features", "paths.matches",
+                          "paths.labels", "paths.reports_dir"),
           deps=("{frames}", "{features}", "{matches}"),
           outs=(Out("{labels}"), Out("{reports_dir}/labels.md", cache=False),
                 Out("{reports_dir}/labels.json", cache=False)),
@@ -140,7 +146,7 @@ STAGES: tuple[Stage, ...] = (
           iterated=True, later_deps=(Dep("{prev_model}", "copied when the iteration is disabled (stages/train.py)"),
                                      "{prev_model_onnx}", "{prev_reports_dir}/train.json")),
     Stage("select_model",
-          keys=(*ROLLOUT_KEYS, "controllers", "features", "evaluate", "select_model", "paths.model",
+          keys=(*ROLLOUT_KEYS, "controllers", "features", "evaluate", "select_model", "plugins", "paths.model",
                 "paths.final_model", "paths.frames", "paths.reports_dir", "parallel",
                 Each(("{block}.enabled", "{block}.paths.model"), first=2, upto="last")),
           deps=(Each(("{model}", "{model_onnx}"), upto="last"), "{frames}", "{raw_dir}"),
@@ -151,7 +157,7 @@ STAGES: tuple[Stage, ...] = (
               "training city in closed loop with evaluate's protocol. The choice is copied to the final model, which "
               "evaluate drives (conf/select_model/default.yaml).")),
     Stage("evaluate",
-          keys=(*ROLLOUT_KEYS, "controllers", "features", "evaluate", "paths.final_model", "paths.frames",
+          keys=(*ROLLOUT_KEYS, "controllers", "features", "evaluate", "plugins", "paths.final_model", "paths.frames",
                 "paths.reports_dir", "parallel"),
           deps=("{final_model}", "{final_model_onnx}", "{frames}", "{raw_dir}"),
           outs=(Out("{reports_dir}/eval"), Out("{reports_dir}/metrics.json", cache=False))),
@@ -217,6 +223,7 @@ def derived_config(cfg: dict[str, Any]) -> dict[str, Any]:
     """What compose adds to the checked config before writing configs/resolved.yaml: parts of the config whose place
     depends on a setting, copied to a fixed key that a stage can declare as a DVC param.
 
+    `plugins`: the installed plugins (`recorded_plugins`).
     `collect_controllers.iteration<N>`: {name: controllers.<name>} for each controller collect builds in iteration N.
     collect reads them from `controllers`; DVC tracks this copy, which compose writes from the same config, so it
     changes exactly when a section collect reads does (with `collect.reference_controller: shin`, `controllers.shin`).
@@ -225,4 +232,24 @@ def derived_config(cfg: dict[str, Any]) -> dict[str, Any]:
     controllers = cfg.get("controllers") or {}
     return {"collect_controllers": {
         f"iteration{n}": {name: controllers.get(name) for name in collect_controller_names(cfg, n)}
-        for n in range(1, LAST_ITERATION + 1)}}
+        for n in range(1, LAST_ITERATION + 1)},
+        "plugins": recorded_plugins()}
+
+
+#: the entry point groups of expoctl's plugin registries (expoctl.controllers.registry, expoctl.features.registry)
+PLUGIN_GROUPS = {"controllers": "expoctl.controllers", "frontends": "expoctl.frontends"}
+
+
+def recorded_plugins() -> dict[str, dict[str, str]]:
+    """`plugins` of the resolved config: {controllers: {name: "<package> <version>: <target>"}, frontends: {...}} of
+    the installed plugin packages, read from their metadata without importing them. guard writes the same list to
+    configs/plugins.yaml, on which compose depends; the stages that build controllers or front ends declare it, so
+    installing, removing or upgrading a plugin re-runs them (collect: only for the controllers)."""
+    from importlib import metadata
+
+    out = {}
+    for kind, group in PLUGIN_GROUPS.items():
+        eps = sorted(metadata.entry_points(group=group), key=lambda ep: ep.name)
+        out[kind] = {ep.name: (f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else "?") + f": {ep.value}"
+                     for ep in eps}
+    return out

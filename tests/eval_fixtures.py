@@ -108,6 +108,7 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
         # the evaluate stage drives the pipeline's final model (select_model's choice; here the one fixture model)
         "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt", "reports_dir": "reports",
                   "final_model": "models/controller.pt"},
+        "plugins": {"controllers": {}, "frontends": {}},  # what compose records (stages/table.py recorded_plugins)
     }
 
 

@@ -141,3 +141,15 @@ def test_a_plugin_cannot_take_a_built_in_name(site):
     CONTROLLERS.reload()
     assert CONTROLLERS.get("agae").package == "expoctl"
     assert CONTROLLERS.broken()["agae"] == ("demo-clash", "its name is taken by the built-in controller")
+
+
+def test_the_pipeline_records_the_registries_entry_point_groups(site):
+    """stages/table.py lists installed plugins by the registries' own groups (it imports only the standard library,
+    so it names them itself): an installed plugin appears in what compose records and guard writes."""
+    from stages.table import PLUGIN_GROUPS, recorded_plugins
+
+    assert PLUGIN_GROUPS == {"controllers": CONTROLLERS.group, "frontends": FRONTENDS.group}
+    assert recorded_plugins() == {"controllers": {}, "frontends": {}}
+    _distribution(site, "demo-hold", "demo_hold", {"controller": HOLD},
+                  {"expoctl.controllers": {"hold_ep": "demo_hold.controller"}})
+    assert recorded_plugins() == {"controllers": {"hold_ep": "demo-hold 0.1: demo_hold.controller"}, "frontends": {}}

@@ -236,24 +236,6 @@ class Registry:
                                                f"expoctl's {self.kind} registry `register({ep.name!r}, ...)`)")
 
 
-#: the entry point groups of expoctl's registries
-GROUPS = ("expoctl.controllers", "expoctl.frontends")
-
-
-def installed_plugins() -> dict[str, dict[str, str]]:
-    """{group: {entry point name: "<distribution> <version>: <target>"}} of every installed plugin, read from package
-    metadata without importing anything: what the pipeline records, so that installing, removing or upgrading one
-    re-runs the stages that build controllers and front ends (stages/guard.py writes it, compose depends on it)."""
-    out: dict[str, dict[str, str]] = {}
-    for group in GROUPS:
-        eps = {}
-        for ep in _entry_points(group):
-            dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else "?"
-            eps[ep.name] = f"{dist}: {ep.value}"
-        out[group] = eps
-    return out
-
-
 def _class_factory(cls: Any) -> Callable[[Any, Any], Any]:
     """factory(config, context) for a class built as `cls(config)`, or `cls(config, context=...)` when its
     constructor has a parameter named `context`."""
