@@ -260,19 +260,6 @@ class Section:
             self.problems.raise_if_any()
 
 
-def convert_values(d: dict, converters: Mapping[str, tuple[Callable[[Any], Any], str]], prefix: str,
-                   problems: list[tuple[str, str]]) -> None:
-    """In place: each key of `d` named in `converters` (key → (convert, what it must be)) converted; a value that
-    does not convert is recorded as `<prefix>.<key>` and dropped, so the dataclass default stands in while the other
-    keys are validated (for the dataclass readers that convert before validating: model, train)."""
-    for k, (convert, what) in converters.items():
-        if k in d:
-            try:
-                d[k] = convert(d[k])
-            except (TypeError, ValueError):
-                problems.append((f"{prefix}.{k}", f"must be {what}, got {d.pop(k)!r}"))
-
-
 def _described(kind: str, bounds: str, unit: str, nullable: bool) -> str:
     text = kind + (f" {bounds}" if bounds else "") + (f" {unit}" if unit and bounds else "")
     return text + (" or null" if nullable else "")
@@ -289,11 +276,12 @@ def read_seed(top: Section) -> int:
 
 def param(default: Any = REQUIRED, *, min: Real | None = None, max: Real | None = None, above: Real | None = None,
           below: Real | None = None, unit: str = "", choices: Sequence | None = None, length: int | None = None,
-          empty: bool = False) -> Any:
+          empty: bool = False, read: Callable[["Section", str, Any], Any] | None = None) -> Any:
     """A field of a typed config dataclass with the bounds its reader checks (`read_config`): `min`/`max` inclusive,
-    `above`/`below` exclusive, `choices` for a string, `length` (and `empty`) for a tuple of numbers."""
+    `above`/`below` exclusive, `choices` for a string, `length` (and `empty`) for a tuple of numbers. `read(section,
+    name, default)` reads a key whose form a type cannot say (a size given as one number or [height, width])."""
     meta = {"min": min, "max": max, "above": above, "below": below, "unit": unit, "choices": choices,
-            "length": length, "empty": empty}
+            "length": length, "empty": empty, "read": read}
     if default is REQUIRED:
         return dataclasses.field(metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -311,7 +299,9 @@ def read_config(cls: type, d: Any, key: str, problems: Problems | None = None) -
 
 
 def _read_field(r: Section, name: str, hint: Any, default: Any, meta: Mapping) -> Any:
-    """One dataclass field from section `r`, dispatched on its type annotation."""
+    """One dataclass field from section `r`, dispatched on its type annotation (or read by its own `read`)."""
+    if meta.get("read") is not None:
+        return meta["read"](r, name, default)
     nullable = False
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType) and type(None) in args:
@@ -354,8 +344,8 @@ def _read_field(r: Section, name: str, hint: Any, default: Any, meta: Mapping) -
 
 def _read_dataclass(self: Section, cls: type) -> Any:
     """This section's keys as an instance of the frozen dataclass `cls` (see `read_config`); the caller calls
-    `done()`. A dataclass may define `check(self, section)` for rules between keys; it runs only when every key
-    read well (a bad key reads as its default, which would only add confusing follow-on problems). One whose keys
+    `done()`. A dataclass may define `check(self, section)` for its bounds and the rules between keys; it runs on
+    what was read (a bad key reads as its default), and a key already named is not named twice. One whose keys
     need more than types and bounds reads them itself in a classmethod `from_section(section)` (same contract)."""
     custom = getattr(cls, "from_section", None)
     if callable(custom):  # a config whose keys need more than a type and bounds (e.g. libviso2's 0/1 switches)
@@ -377,13 +367,18 @@ def _read_dataclass(self: Section, cls: type) -> Any:
         # a required key that is missing or bad has no value to build with: the defaults stand in
         values = {k: v for k, v in values.items() if v is not None or _nullable(hints[k])}
         try:
-            return cls(**values)
+            value = cls(**values)
         except TypeError:
             return None
-    value = cls(**values)
+    else:
+        value = cls(**values)
     check = getattr(value, "check", None)
     if callable(check):
+        # the rules run on what was read (a bad key reads as its default); a key already named is not named again
+        named = {k for k, _ in self.problems.items[before:]}
+        mark = len(self.problems)
         check(self)
+        self.problems.items[mark:] = [(k, p) for k, p in self.problems.items[mark:] if k not in named]
     return value
 
 

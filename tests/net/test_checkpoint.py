@@ -112,7 +112,7 @@ def test_bad_model_config_names_the_file_and_key(good, tmp_path):
     bad = tmp_path / "cfg.pt"
     torch.save(ckpt, bad)
     with pytest.raises(InputError, match=f"^{bad}: bad model_config: config key 'model_config.dropout': must be a "
-                                         "number, got 'high'$"):
+                                         "finite number, got 'high'$"):
         check_checkpoint(bad)
 
 

@@ -55,12 +55,15 @@ def test_config_validation_names_keys():
 def test_value_that_does_not_convert_names_its_own_key_and_every_problem_is_reported():
     with pytest.raises(ConfigError) as exc:
         ModelConfig.from_dict({"dropout": "abc", "conv_widths": "30", "input_size": "big", "pool": 0})
-    assert exc.value.problems == [
+    assert exc.value.problems == [  # one reader (config_reader.read_config): in field order, then the rules
         ("model.input_size", "must be a size in pixels or [height, width], got 'big'"),
-        ("model.dropout", "must be a number, got 'abc'"),
-        ("model.conv_widths", "must be a list of integers, got '30'"),
+        ("model.conv_widths", "must be a non-empty list of finite numbers, got '30'"),
+        ("model.dropout", "must be a finite number, got 'abc'"),
         ("model.conv_kernels", "kernels and pool must be ≥ 1"),
     ]
+    with pytest.raises(ConfigError) as exc:
+        ModelConfig.from_dict({"conv_widths": [30, 60.5, 120, 240]})
+    assert exc.value.problems == [("model.conv_widths", "must be a list of integers, got [30, 60.5, 120, 240]")]
 
 
 def test_residual_output_starts_as_the_hold_predictor():

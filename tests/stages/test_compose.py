@@ -96,7 +96,7 @@ def test_good_params_write_resolved_config(project, capsys):
 
 
 @pytest.mark.parametrize("params,errors", [
-    ("overrides: [train.lr=abc]\n", ["config key 'train.lr': must be a number, got 'abc'"]),
+    ("overrides: [train.lr=abc]\n", ["config key 'train.lr': must be a finite number, got 'abc'"]),
     ("overrides: [train.lr=-1]\n", ["config key 'train.lr': must be > 0, got -1.0"]),
     ("overrides: [world.render.width=0]\n",
      ["config key 'world.render.width': must be an integer in [16, 8192] pixels, got 0"]),
@@ -111,7 +111,7 @@ def test_good_params_write_resolved_config(project, capsys):
     ("overrides: [train.lr=abc, world.render.width=0, world.cities.test=nowhere]\ntrain:\n  lr: 0.001\n", [
         TRAIN_KEY,
         "config key 'world.render.width': must be an integer in [16, 8192] pixels, got 0",
-        "config key 'train.lr': must be a number, got 'abc'",
+        "config key 'train.lr': must be a finite number, got 'abc'",
         f"config key 'world.cities.test': {UNKNOWN_CITY}"]),
     ("[scale=fixture]\n", ["params.yaml: must be a mapping with one key, 'overrides' (a list of Hydra overrides), "
                            "got ['scale=fixture']"]),

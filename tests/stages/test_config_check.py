@@ -29,7 +29,7 @@ def test_every_scale_preset_passes(scale):
 
 
 @pytest.mark.parametrize("overrides,problems", [
-    (["train.lr=abc"], [("train.lr", "must be a number, got 'abc'")]),
+    (["train.lr=abc"], [("train.lr", "must be a finite number, got 'abc'")]),
     (["train.lr=-1"], [("train.lr", "must be > 0, got -1.0")]),
     (["world.render.width=0"], [("world.render.width", "must be an integer in [16, 8192] pixels, got 0")]),
     (["world.cities.test=nowhere"], [("world.cities.test", UNKNOWN_CITY)]),
@@ -68,7 +68,7 @@ def test_several_bad_values_are_all_reported_at_once():
         ("collect.warmup_frames", "must be an integer >= 0, got -2"),
         ("world.render.width", "must be an integer in [16, 8192] pixels, got 0"),
         ("model.dropout", "must be in [0, 1), got 2.0"),
-        ("train.lr", "must be a number, got 'abc'"),
+        ("train.lr", "must be a finite number, got 'abc'"),
         ("world.cities.test", UNKNOWN_CITY),
         ("unused_note", f"unknown key (expected one of {TOP_LEVEL})"),
     ]

@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from expoctl.camera.ranges import EXPOSURE_SCALES
-from expoctl.config_reader import convert_values
+from expoctl.config_reader import Section, is_integer, param, read_config
 from expoctl.errors import ConfigError
 from expoctl.net.preprocess import N_INPUT_CHANNELS, as_hw
 
@@ -36,9 +36,20 @@ OUTPUTS = ("absolute", "residual")
 _T_SETTING_CHANNELS = slice(3, 5)
 
 
+def _read_size(r: Section, name: str, default: tuple[int, int]) -> tuple[int, int]:
+    """`input_size`: (height, width) of the network input, given as one number (square) or [height, width]."""
+    v = r.value(name, default)
+    ok = (is_integer(v) and v >= 1) or (isinstance(v, (list, tuple)) and len(v) == 2
+                                          and all(is_integer(x) and x >= 1 for x in v))
+    if not ok:
+        r.problem(name, f"must be a size in pixels or [height, width], got {v!r}")
+        return default
+    return as_hw(v)
+
+
 @dataclass(frozen=True)
 class ModelConfig:
-    input_size: tuple[int, int] = (224, 224)  # (height, width) of the network input
+    input_size: tuple[int, int] = param((224, 224), read=_read_size)  # (height, width)
     conv_widths: tuple[int, ...] = (30, 60, 120, 240)
     conv_kernels: tuple[int, ...] = (5, 3, 3)  # the last conv's kernel is computed (covers the remaining map)
     pool: int = 3  # max-pool size = stride after each of the first len(conv_kernels) convs
@@ -54,29 +65,25 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "model") -> "ModelConfig":
-        """Every problem at once (ConfigError), each under its own key: a value that does not convert is reported
-        as `model.<key>` and the key's default stands in while the others are validated."""
-        d = dict(d or {})
-        known = {f.name for f in fields(cls)}
-        problems = [(f"{prefix}.{k}", f"unknown key (known: {sorted(known)})") for k in sorted(d) if k not in known]
-        converters = {"input_size": (as_hw, "a size in pixels or [height, width]"), "pool": (int, "an integer"),
-                      "dropout": (float, "a number"), "exposure_scale": (str, "a string"), "output": (str, "a string")}
-        converters.update({k: (_int_tuple, "a list of integers") for k in ("conv_widths", "conv_kernels", "fc_widths")})
-        convert_values(d, converters, prefix, problems)
-        cfg = cls(**{k: v for k, v in d.items() if k in known})
-        try:
-            cfg.validate(prefix)
-        except ConfigError as exc:
-            problems += exc.problems
-        if problems:
-            raise ConfigError.of(problems)
-        return cfg
+        """Every problem at once (ConfigError), each under its own key (`config_reader.read_config`)."""
+        return read_config(cls, d, prefix)
+
+    def check(self, r: Section) -> None:
+        """The architecture's rules (read_config runs it on what was read)."""
+        for key, problem in self.problems():
+            r.problem(key, problem)
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
     def validate(self, prefix: str = "model") -> None:
-        """Every problem at once (ConfigError)."""
+        """Every problem at once (ConfigError) of a config built in code."""
+        problems = self.problems()
+        if problems:
+            raise ConfigError.of([(f"{prefix}.{k}", p) for k, p in problems])
+
+    def problems(self) -> list[tuple[str, str]]:
+        """(key, problem) for each rule the architecture breaks."""
         problems = []
         if len(self.conv_widths) != len(self.conv_kernels) + 1:
             problems.append(("conv_widths", "needs one more entry than conv_kernels (the last conv's kernel is computed)"))
@@ -95,14 +102,7 @@ class ModelConfig:
             if sane and final_map_size(n, self.conv_kernels, self.pool) < 1:
                 problems.append(("input_size", f"{axis} {n} too small for kernels {list(self.conv_kernels)} with "
                                  f"pool {self.pool} (minimum {min_input_size(self.conv_kernels, self.pool)})"))
-        if problems:
-            raise ConfigError.of([(f"{prefix}.{k}", p) for k, p in problems])
-
-
-def _int_tuple(v) -> tuple[int, ...]:
-    if isinstance(v, (str, bytes)):  # tuple("64") would read as digits
-        raise ValueError(v)
-    return tuple(int(x) for x in v)
+        return problems
 
 
 def final_map_size(n: int, kernels, pool: int) -> int:

@@ -61,9 +61,13 @@ from expoctl.net.dataset import SampleSet, predict
 from expoctl.net.exposure_shift import MAX_SHIFT_EV, ExposureShift, draw_shifts
 from expoctl.net.clipped_frames import clipped_frame_loss, uniform_frame_steps
 from expoctl.camera.response import Response
-from expoctl.config_reader import Section, convert_values
+from expoctl.config_reader import Section, param, read_config
 from expoctl.errors import ConfigError
 from expoctl.net.model import ExposureNet, ModelConfig, count_macs, count_parameters
+
+
+#: where training runs (train.device; resolve_device)
+DEVICES = ("auto", "cpu", "cuda")
 
 
 @dataclass(frozen=True)
@@ -87,47 +91,35 @@ class TrainConfig:
     # synthetic over-exposure (expoctl.net.exposure_shift): this share of training samples, each k ~ U[exposure_shift_ev]
     # EV brighter; 0 = the paper's data
     exposure_shift_probability: float = 0.0
-    exposure_shift_ev: tuple[float, float] = (0.0, 6.0)
+    exposure_shift_ev: tuple[float, ...] = param((0.0, 6.0), length=2, unit="EV")
     # clipped-frame prior (expoctl.net.clipped_frames): weight of the hinge on all-white / all-black inputs; 0 = the
     # paper's loss. Per batch clipped_frame_samples white and as many black inputs; margins (white, black) in EV
     clipped_frame_weight: float = 0.0
     clipped_frame_samples: int = 4
-    clipped_frame_margin_ev: tuple[float, float] = (0.178, 0.51)
+    clipped_frame_margin_ev: tuple[float, ...] = param((0.178, 0.51), length=2, unit="EV")
     # where training runs: auto (cuda when torch.cuda.is_available(), else cpu) | cpu | cuda (resolve_device)
-    device: str = "auto"
+    device: str = param("auto", choices=DEVICES)
     onnx_exporter: str = "torchscript"  # torchscript (no extra deps) | dynamo (needs onnxscript)
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
     @classmethod
     def from_dict(cls, d: dict | None, prefix: str = "train") -> "TrainConfig":
-        """Every problem at once (ConfigError), each under its own key: a value that does not convert is reported
-        as `train.<key>` and the key's default stands in while the others are validated."""
-        d = dict(d or {})
-        types = {f.name: f.type for f in fields(cls)}
-        problems = [(f"{prefix}.{k}", f"unknown key (known: {sorted(types)})") for k in d if k not in types]
-        converters = {k: (int, "an integer") for k in ("batch_size", "epochs", "patience", "num_threads",
-                                                        "eval_batch_size", "clipped_frame_samples")}
-        converters.update({k: (float, "a number") for k in (
-            "lr", "epsilon", "weight_decay", "min_delta", "flip_prob", "consistency_weight",
-            "exposure_shift_probability", "clipped_frame_weight")})
-        converters.update({k: (_ev_pair, "two numbers in EV") for k in ("exposure_shift_ev", "clipped_frame_margin_ev")})
-        converters.update({k: (_optional_int, "an integer or null") for k in ("max_train_samples",
-                                                                               "max_validation_samples")})
-        if "device" in d:  # read with the config reader: a bad value is named train.device, the default stands in
-            section = Section(d, prefix)
-            d["device"] = section.choice("device", DEVICES, "auto")
-            problems += section.problems.items
-        convert_values(d, converters, prefix, problems)
-        cfg = cls(**{k: v for k, v in d.items() if k in types})
-        try:
-            cfg.validate(prefix)
-        except ConfigError as exc:
-            problems += exc.problems
-        if problems:
-            raise ConfigError.of(problems)
-        return cfg
+        """Every problem at once (ConfigError), each under its own key (`config_reader.read_config`)."""
+        return read_config(cls, d, prefix)
+
+    def check(self, r: Section) -> None:
+        """The bounds and choices (read_config runs it once every key has the right type)."""
+        for key, problem in self.problems():
+            r.problem(key, problem)
 
     def validate(self, prefix: str = "train") -> None:
+        """Every problem at once (ConfigError) of a config built in code."""
+        problems = [(f"{prefix}.{key}", problem) for key, problem in self.problems()]
+        if problems:
+            raise ConfigError.of(problems)
+
+    def problems(self) -> list[tuple[str, str]]:
+        """(key, problem) for each value out of its bounds."""
         checks = [
             ("lr", self.lr > 0, "must be > 0"),
             ("batch_size", self.batch_size >= 2, "must be ≥ 2 (batch norm)"),
@@ -151,7 +143,7 @@ class TrainConfig:
              "must be [white, black] EV per frame, each in [0, 2]"),
             ("num_threads", self.num_threads >= 1, "must be ≥ 1"),
             ("eval_batch_size", self.eval_batch_size >= 1, "must be ≥ 1"),
-            ("device", self.device in DEVICES, f"must be one of {', '.join(DEVICES)}"),
+            ("device", self.device in DEVICES, f"must be one of {', '.join(DEVICES)}"),  # a config built in code
             ("onnx_exporter", self.onnx_exporter in ("torchscript", "dynamo"), "must be torchscript or dynamo"),
             ("mlflow_model_format", self.mlflow_model_format in ("pt2", "pickle"), "must be pt2 or pickle"),
             ("train_subset", self.train_subset in ("fixed", "per_epoch"), "must be fixed or per_epoch"),
@@ -159,12 +151,8 @@ class TrainConfig:
             ("max_validation_samples", self.max_validation_samples is None or self.max_validation_samples >= 1,
              "must be ≥ 1 or null"),
         ]
-        problems = [(f"{prefix}.{key}", f"{problem}, got {getattr(self, key)}") for key, ok, problem in checks if not ok]
-        if problems:  # every one at once
-            raise ConfigError.of(problems)
+        return [(key, f"{problem}, got {getattr(self, key)}") for key, ok, problem in checks if not ok]
 
-
-DEVICES = ("auto", "cpu", "cuda")
 
 
 def resolve_device(setting: str, local_rank: int | None = None, key: str = "train.device") -> torch.device:
@@ -204,16 +192,6 @@ class OnDevice(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.model(x.to(self.device)).to(x.device)
-
-
-def _ev_pair(v) -> tuple[float, float]:
-    if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 2:
-        raise ValueError(v)
-    return float(v[0]), float(v[1])
-
-
-def _optional_int(v) -> int | None:
-    return None if v is None else int(v)
 
 
 def weighted_l1(pred: torch.Tensor, target: torch.Tensor, epsilon: float) -> torch.Tensor:
