@@ -48,9 +48,10 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
     problems = Problems()
     top = Section(cfg, "", problems)
     collect = problems.collect(CollectInputs.from_resolved, cfg)  # reader that stops at its end: collected
-    for build, key in ((IngestConfig.from_dict, "ingest"), (LabelConfig.from_dict, "labels"),
-                       (SampleConfig.from_dict, "samples"), (ReportConfig.from_dict, "report")):
-        problems.collect(build, top.value(key, None))
+    # every group through its reader, one signature (d, key, problems): all their problems in this one pass
+    for group, key in ((IngestConfig, "ingest"), (LabelConfig, "labels"), (SampleConfig, "samples"),
+                       (ReportConfig, "report")):
+        group.from_dict(top.value(key, None), key, problems)
     problems.collect(train_configs, cfg)  # model, train, seed: as the train stage builds them
     ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems)  # where jobs run (as collect reads it)
     select = SelectConfig.from_dict(top.value("select_model", None), "select_model", problems)

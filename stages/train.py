@@ -57,8 +57,8 @@ def configs(cfg: dict) -> tuple[ModelConfig, TrainConfig, int]:
 
     problems = Problems()
     seed = read_seed(Section(cfg, "", problems))
-    model_cfg = problems.collect(ModelConfig.from_dict, cfg.get("model"))
-    train_cfg = problems.collect(TrainConfig.from_dict, cfg.get("train"))
+    model_cfg = ModelConfig.from_dict(cfg.get("model"), "model", problems)
+    train_cfg = TrainConfig.from_dict(cfg.get("train"), "train", problems)
     problems.raise_if_any()
     return model_cfg, train_cfg, seed
 

@@ -59,7 +59,7 @@ class EvaluationInputs:
         problems = problems if problems is not None else Problems()
         top = Section(cfg, "", problems)
         evaluate = EvaluateConfig.from_dict(top.value("evaluate", None), "evaluate", problems)
-        features = FeaturesConfig.from_dict(top.value("features", None), problems)
+        features = FeaturesConfig.from_dict(top.value("features", None), "features", problems)
         seed = read_seed(top)
         world = WorldConfig.from_dict(top.value("world", None), "world", problems)
         rig = RigConfig.from_dict(top.value("rig", None), "rig", problems)

@@ -20,7 +20,7 @@ import cv2
 import numba
 import numpy as np
 
-from expoctl.config_reader import Section, is_integer, read_config
+from expoctl.config_reader import Problems, Section, is_integer, read_config
 from expoctl.features.registry import register_frontend
 from expoctl.features.verify import VerifyParams, count_fundamental_inliers
 
@@ -41,9 +41,9 @@ class OrbParams:
     ransac_method: str = "ransac"
 
     @classmethod
-    def from_dict(cls, d: dict | None, key: str = "features.orb") -> "OrbParams":
-        """Build from a config dict (missing keys take the defaults above); raise ConfigError on bad values."""
-        return read_config(cls, d, key)
+    def from_dict(cls, d: dict | None, key: str = "features.orb", problems: Problems | None = None) -> "OrbParams":
+        """Build from a config dict (missing keys take the defaults above); every problem at once (ConfigError)."""
+        return read_config(cls, d, key, problems)
 
     @classmethod
     def from_section(cls, r: Section) -> "OrbParams":

@@ -55,8 +55,8 @@ class FeaturesConfig:
         return frontend(name, "features.frontends").config()
 
     @classmethod
-    def from_dict(cls, d: dict | None, problems: Problems | None = None) -> "FeaturesConfig":
-        r = Section(d, "features", problems)
+    def from_dict(cls, d: dict | None, key: str = "features", problems: Problems | None = None) -> "FeaturesConfig":
+        r = Section(d, key, problems)
         known = frontend_names()
         frontends = FRONTENDS.read_names(r, "frontends")  # null: every registered front end
         configs = {}
@@ -69,7 +69,7 @@ class FeaturesConfig:
             r.problem("n_jobs", f"must be a positive integer or -1 (all cores), got {n_jobs!r}")
             n_jobs = 1
         seed = r.integer("seed", 0)
-        sumlog = SumLogGrid.from_dict(r.value("sumlog", None), r.problems)
+        sumlog = SumLogGrid.from_dict(r.value("sumlog", None), r.path("sumlog"), r.problems)
         r.done()
         return cls(frontends, configs, n_jobs, seed, sumlog)
 

@@ -139,8 +139,8 @@ class SumLogGrid:
     max_pairs: int = 100
 
     @classmethod
-    def from_dict(cls, d: dict | None, problems: Problems | None = None) -> "SumLogGrid":
-        r = Section(d, "features.sumlog", problems)
+    def from_dict(cls, d: dict | None, key: str = "features.sumlog", problems: Problems | None = None) -> "SumLogGrid":
+        r = Section(d, key, problems)
         alphas = r.value("alphas", cls.alphas)
         if not _is_seq(alphas) or len(alphas) == 0:
             r.problem("alphas", f"must be a non-empty list of [α_R, α_G, α_B], got {alphas!r}")

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from expoctl.camera import ranges
-from expoctl.config_reader import Section
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import InputError
 from expoctl.labels.targets import METRICS, index_frames, require_columns, row_error
 
@@ -33,8 +33,8 @@ class SampleConfig:
     metric: str = "hybrid"  # which label metric becomes the target (the paper trains on M_hybrid)
 
     @classmethod
-    def from_dict(cls, d: Mapping | None, group: str = "samples") -> "SampleConfig":
-        r = Section(d, group)
+    def from_dict(cls, d: Mapping | None, key: str = "samples", problems: Problems | None = None) -> "SampleConfig":
+        r = Section(d, key, problems)
         cfg = cls(r.choice("metric", METRICS, cls.metric))
         r.done()
         return cfg

@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from expoctl.camera import ranges
-from expoctl.config_reader import Section
+from expoctl.config_reader import Problems, Section
 from expoctl.controllers.base import read_latency_frames
 from expoctl.errors import InputError
 from expoctl.features.registry import frontend_names
@@ -79,8 +79,8 @@ class LabelConfig:
         return tuple(self.frontend.split("+"))
 
     @classmethod
-    def from_dict(cls, d: Mapping | None, group: str = "labels") -> "LabelConfig":
-        r = Section(d, group)
+    def from_dict(cls, d: Mapping | None, key: str = "labels", problems: Problems | None = None) -> "LabelConfig":
+        r = Section(d, key, problems)
         frontend = r.text("frontend", cls.frontend)
         known = frontend_names()
         parts = frontend.split("+")

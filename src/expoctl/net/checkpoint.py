@@ -148,7 +148,7 @@ def _model_config(path, ckpt: dict) -> ModelConfig:
     if not isinstance(ckpt["model_config"], dict):
         raise InputError(f"{path}: model_config must be a mapping, got {type(ckpt['model_config']).__name__}")
     try:
-        return ModelConfig.from_dict(ckpt["model_config"], prefix="model_config")
+        return ModelConfig.from_dict(ckpt["model_config"], "model_config")
     except ConfigError as exc:
         raise InputError(f"{path}: bad model_config: {exc}") from None
 

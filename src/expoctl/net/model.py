@@ -64,9 +64,9 @@ class ModelConfig:
     output: str = "absolute"
 
     @classmethod
-    def from_dict(cls, d: dict | None, prefix: str = "model") -> "ModelConfig":
+    def from_dict(cls, d: dict | None, key: str = "model", problems=None) -> "ModelConfig":
         """Every problem at once (ConfigError), each under its own key (`config_reader.read_config`)."""
-        return read_config(cls, d, prefix)
+        return read_config(cls, d, key, problems)
 
     def check(self, r: Section) -> None:
         """The architecture's rules (read_config runs it on what was read)."""

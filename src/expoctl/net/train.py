@@ -103,9 +103,9 @@ class TrainConfig:
     mlflow_model_format: str = "pt2"  # how the stage logs the model to MLflow: pt2 (safe, ~10 s export) | pickle
 
     @classmethod
-    def from_dict(cls, d: dict | None, prefix: str = "train") -> "TrainConfig":
+    def from_dict(cls, d: dict | None, key: str = "train", problems=None) -> "TrainConfig":
         """Every problem at once (ConfigError), each under its own key (`config_reader.read_config`)."""
-        return read_config(cls, d, prefix)
+        return read_config(cls, d, key, problems)
 
     def check(self, r: Section) -> None:
         """The bounds and choices (read_config runs it once every key has the right type)."""

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from expoctl.config_reader import Section
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import InputError
 from expoctl.io import atomic_dir, write_parquet
 from expoctl.raw.format import find_sequences, read_image_rgb
@@ -44,8 +44,8 @@ class IngestConfig:
     holdout_test: float = 0.15
 
     @classmethod
-    def from_dict(cls, d: dict, key: str = "ingest") -> "IngestConfig":
-        r = Section(d, key)
+    def from_dict(cls, d: dict, key: str = "ingest", problems: Problems | None = None) -> "IngestConfig":
+        r = Section(d, key, problems)
         size = dict(min=8, max=4096, unit="pixels")
         hold = r.section("holdout_fractions")
         cfg = cls(r.integer("image_width", cls.image_width, **size), r.integer("image_height", cls.image_height, **size),

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from expoctl.config_reader import Section
+from expoctl.config_reader import Problems, Section
 from expoctl.errors import InputError
 from expoctl.io import atomic_dir
 from expoctl.evaluation.aggregate import validate_metrics
@@ -38,8 +38,8 @@ class ReportConfig:
     strip_columns: int = 6
 
     @classmethod
-    def from_dict(cls, d: dict | None, key: str = "report") -> "ReportConfig":
-        r = Section(d, key)
+    def from_dict(cls, d: dict | None, key: str = "report", problems: Problems | None = None) -> "ReportConfig":
+        r = Section(d, key, problems)
         cfg = cls(r.choice("strip_split", ("validation", "test"), cls.strip_split),
                   r.choice("strip_portal", ("entry", "exit"), cls.strip_portal),
                   r.integer("strip_columns", cls.strip_columns, min=1, max=20))

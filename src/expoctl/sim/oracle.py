@@ -70,8 +70,8 @@ class OracleParams:
     candidate_render: str = param("full", choices=CANDIDATE_RENDERS)
 
     @classmethod
-    def from_dict(cls, d: dict | None, key: str = "controllers.oracle") -> "OracleParams":
-        return read_config(cls, d, key)
+    def from_dict(cls, d: dict | None, key: str = "controllers.oracle", problems=None) -> "OracleParams":
+        return read_config(cls, d, key, problems)
 
     def candidates(self) -> list[Settings]:
         """The ladder: each exposure at 0 dB, then each gain at the longest exposure (duplicates dropped)."""

@@ -32,6 +32,11 @@ class VisoParams:
     inlier_threshold: float = 1e-5  # Sampson error in Hartley-normalised coordinates
 
     @classmethod
+    def from_dict(cls, d: dict | None, key: str = "features.viso", problems=None) -> "VisoParams":
+        """Every problem at once (ConfigError), each under its own key (`config_reader.read_config`)."""
+        return read_config(cls, d, key, problems)
+
+    @classmethod
     def from_section(cls, r: Section) -> "VisoParams":
         """The keys of section `r` (`features.viso`; libviso2's 0/1 switches accepted); the caller calls `done()`."""
         return _read_viso(r)
@@ -62,9 +67,7 @@ def _flag(r: Section, name: str) -> bool:
 def parse_params(params: dict | None) -> VisoParams:
     """Validate a `features.viso` config dict (missing keys take defaults) and return VisoParams; every problem at
     once (ConfigError)."""
-    if params is not None and not isinstance(params, dict):
-        raise ConfigError("features.viso", f"must be a mapping, got {type(params).__name__}")
-    return read_config(VisoParams, params, "features.viso")
+    return VisoParams.from_dict(params)
 
 
 def _read_viso(r: Section) -> VisoParams:
