@@ -153,3 +153,12 @@ def test_the_pipeline_records_the_registries_entry_point_groups(site):
     _distribution(site, "demo-hold", "demo_hold", {"controller": HOLD},
                   {"expoctl.controllers": {"hold_ep": "demo_hold.controller"}})
     assert recorded_plugins() == {"controllers": {"hold_ep": "demo-hold 0.1: demo_hold.controller"}, "frontends": {}}
+
+
+def test_the_dvc_generator_follows_what_the_registries_import():
+    """The registries import their built-ins by name, which the dvc.yaml generator cannot see in the code: its table
+    of such imports must name the same packages, or a new controller's file would be no stage's dependency."""
+    from stages.dvc_yaml import DYNAMIC_IMPORTS
+
+    assert DYNAMIC_IMPORTS["src/expoctl/controllers/registry.py"] == CONTROLLERS.builtin_packages
+    assert DYNAMIC_IMPORTS["src/expoctl/features/registry.py"] == FRONTENDS.builtin_packages
