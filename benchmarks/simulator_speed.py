@@ -12,8 +12,16 @@ benchmarks/results/simulator_speed_backends.json (--backend egl writes simulator
 --lp-threads: LP_NUM_THREADS for Mesa llvmpipe (set before the GL context exists; default: llvmpipe's own).
 --baseline OLD_SRC: also time another version of the code (a `src` directory, e.g. from
 `git archive <commit> src | tar -x -C /tmp/old` → /tmp/old/src) on the same frames, alternating with the current code
-frame by frame, and report both medians, their ratio and whether the images are identical: on a shared machine only
-ratios measured in one run compare.
+frame by frame, and report both medians, their ratio and whether the images are identical (sharp render, 5 ms blur,
+sensor image; plus the fast blur alone at 75 µs–5 ms): on a shared machine only ratios measured in one run compare.
+The copy of OLD_SRC is kept in the temporary directory while OLD_SRC is unchanged, so its kernels compile once.
+--skip-stages: only the --baseline comparison.
+--identity-check (with --baseline): the default outputs of both versions bit for bit on poses of --identity-cities
+(open road, in and at every portal; two traversals each): sharp render, fast blur 75 µs–30 ms for both cameras,
+share_render, reference blur, sensor 8-bit and raw; exit 1 on any difference.
+--light-map-check: portal_daylight light_map vs exact on --frames frames per tunnel of --identity-cities, against the
+registered bounds of docs/simulator.md; writes benchmarks/results/simulator_speed_light_map.json.
+--portal-daylight: world.render.portal_daylight of the current code's renderers.
 Frames are spread over the training city's whole route (open road, portals, tunnel interior), so the numbers mix
 scene types the way a traversal does. Each stage is timed per camera-frame (wall clock; the CPU-time rows show the
 cost independent of other users of the machine); `total` = blurred render + sensor.
