@@ -52,6 +52,7 @@ class Plugin:
     rank: int = 1000               # place in tables and figures (built-ins 10 … 90; then by name)
     colour: str | None = None      # matplotlib colour; None: one from the default cycle by position
     info: Mapping[str, Any] = field(default_factory=dict)  # kind-specific facts (controllers: `needs`)
+    target: Any = None             # the decorated object (a class, or what `factory=` was registered on)
 
     def read_config(self, section: Any, key: str, problems: Problems | None = None) -> Any:
         """The typed config of this entry from its section (`controllers.<name>`), every problem with its path."""
@@ -101,7 +102,7 @@ class Registry:
                 self._broken[name] = (package, problem)
                 return obj
             self._entries[name] = Plugin(self.kind, name, config, build, package, module, label or name, rank,
-                                         colour, dict(info))
+                                         colour, dict(info), obj)
             self._broken.pop(name, None)
             return obj
 
@@ -154,6 +155,11 @@ class Registry:
             raise ConfigError(key, f"{self.kind} plugin {name!r} (package {package}) is broken: {problem}")
         raise ConfigError(key, f"unknown {self.kind} {name!r} (known: {', '.join(self.names())}); a plugin "
                           f"registers through the entry point group '{self.group}' of an installed package")
+
+    def name_of(self, obj: Any) -> str | None:
+        """The name `obj` (a decorated class or object) is registered under, if any."""
+        self._load()
+        return next((p.name for p in self._entries.values() if p.target is obj), None)
 
     def broken(self) -> dict[str, tuple[str, str]]:
         """{name: (package, problem)} of every plugin that failed to load."""

@@ -17,6 +17,8 @@ the learned network's file; "scene": the simulator's scene and sensor, so it can
 
 from __future__ import annotations
 
+import importlib
+import inspect
 from dataclasses import dataclass, fields, is_dataclass, replace
 from typing import Any
 
@@ -90,6 +92,53 @@ def make_controller(name: str, config: Any = None, context: ControllerContext | 
                               + ("it renders candidate frames, so it runs only inside the simulator (evaluate)"
                                  if need == "scene" else "a trained network"))
     return entry.factory(config, context)
+
+
+@dataclass(frozen=True)
+class NoConfig:
+    """The config of a controller given by import path without a `Config` of its own: no keys."""
+
+
+def resolve_controller(ref: str, key: str = "controller") -> str:
+    """The registry name of `ref`: a registered name as is, or an import path "module:attr" (e.g.
+    "my_pkg.ctl:HoldController"). An import path to a registered object gives its name; to a plain Controller
+    class, registers it here under its `name` attribute (else the attribute name), with its `Config` class
+    attribute as config when that is a frozen dataclass (else no keys). Any process that resolves the same path
+    gets the same name (evaluate's workers do, before they build it). ConfigError at `key` naming what is wrong."""
+    if ":" not in ref:
+        controller(ref, key)
+        return ref
+    module_name, _, attr = ref.partition(":")
+    if not module_name or not attr:
+        raise ConfigError(key, f"{ref!r} is neither a registered controller nor an import path 'module:Class'")
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:  # whatever the user's module raises on import
+        raise ConfigError(key, f"{ref!r}: importing {module_name!r} failed: {type(exc).__name__}: {exc}") from None
+    obj = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ConfigError(key, f"{ref!r}: module {module_name!r} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+    known = CONTROLLERS.name_of(obj)
+    if known is not None:
+        return known
+    if not inspect.isclass(obj):
+        raise ConfigError(key, f"{ref!r} is a {type(obj).__name__}, not a controller class (register a factory "
+                          "with @register_controller(..., factory=...) instead)")
+    name = getattr(obj, "name", None)
+    name = name if isinstance(name, str) and name.isidentifier() and name != Controller.name else attr.split(".")[-1]
+    config = getattr(obj, "Config", None)
+    config = config if inspect.isclass(config) and is_dataclass(config) else NoConfig
+    taken = CONTROLLERS.get(name) if name in CONTROLLERS else None
+    if taken is not None:
+        raise ConfigError(key, f"{ref!r} would register as {name!r}, a name taken by {taken.origin}; give the class "
+                          "another `name`")
+    CONTROLLERS.register(name, config=config, label=getattr(obj, "label", None) or name)(obj)
+    if name not in CONTROLLERS:
+        package, problem = CONTROLLERS.broken().get(name, ("?", "it did not register"))
+        raise ConfigError(key, f"{ref!r}: {problem}")
+    return name
 
 
 def with_limits(config: Any, limits: dict[str, float]) -> Any:

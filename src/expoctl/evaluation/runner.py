@@ -67,6 +67,7 @@ class RunJob:
     sumlog: dict[str, SumLogParams] = field(repr=False)
     model_path: str | None = None
     label: str = ""  # names the run instead of `controller` when several runs of a window share one (model selection)
+    reference: str | None = None  # "module:attr" of a controller given by import path (`expoctl bench`)
 
     @property
     def run_id(self) -> str:
@@ -219,7 +220,7 @@ def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
     Every run's images are those it would get alone: the caches hold pure functions of (frame, exposure)."""
     import expoctl.sim.oracle as oracle_mod
     from expoctl.controllers.base import Settings
-    from expoctl.controllers.registry import ControllerContext, make_controller, needs
+    from expoctl.controllers.registry import ControllerContext, make_controller, needs, resolve_controller
     from expoctl.evaluation.run import WindowFrames, WindowRun, drive_lockstep
     from expoctl.features.pipeline import make_frontend
     from expoctl.sim.closed_loop import RouteScene, make_sensors, rig_metadata
@@ -242,6 +243,8 @@ def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
     K = intrinsics_matrix(rig_metadata(rig, render)["intrinsics"])
     runs, warmups = [], []
     for job in jobs:
+        if job.reference:  # a controller given by import path registers in this process too (spawned workers)
+            resolve_controller(job.reference)
         config = inputs.controller_config(job.controller)
         # a controller that sees the scene may warm up for less (its config's warmup_frames: the oracle's)
         warmup = ecfg.warmup_frames
@@ -294,13 +297,9 @@ def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
              progress: bool = False, parallel: ParallelConfig | None = None) -> EvaluationResult:
     """Plan, tune SumLog, run every (window, controller) and aggregate (no files written). `parallel`: where the
     runs go (`run_jobs`); never changes a result."""
-    from expoctl.controllers.registry import make_controller, needs
-
     project_root = Path(project_root)
     ecfg = inputs.evaluate
-    for name in ecfg.controllers:  # built once before any work (a plugin's constructor may refuse its config)
-        if not needs(name):
-            make_controller(name, inputs.controller_config(name))
+    check_controllers(ecfg.controllers, inputs)
     model_path = None
     if "learned" in ecfg.controllers:
         model_path = inputs.learned_model_path(project_root)
@@ -309,22 +308,46 @@ def evaluate(inputs: EvaluationInputs, project_root: str | os.PathLike = ".",
                              "train stage first (or drop 'learned' from evaluate.controllers)")
     windows = plan_windows(inputs, project_root)
     sumlog = tune_sumlog_params(inputs, project_root, ecfg.sumlog_pairs)
+    return evaluate_windows(inputs, windows, sumlog, ecfg.controllers, model_path, progress, parallel)
+
+
+def check_controllers(names, inputs: EvaluationInputs, references: dict[str, str] | None = None) -> None:
+    """Build every controller of `names` that needs nothing at run time once, before any work: a plugin's
+    constructor may refuse its config. `references`: {name: "module:attr"} of controllers given by import path."""
+    from expoctl.controllers.registry import make_controller, needs, resolve_controller
+
+    for ref in (references or {}).values():
+        resolve_controller(ref)
+    for name in names:
+        if not needs(name):
+            make_controller(name, inputs.controller_config(name))
+
+
+def evaluate_windows(inputs: EvaluationInputs, windows: list[Window], sumlog: dict[str, SumLogParams],
+                     controllers, model_path: str | os.PathLike | None = None, progress: bool = False,
+                     parallel: ParallelConfig | None = None,
+                     references: dict[str, str] | None = None) -> EvaluationResult:
+    """Run every (window, controller) of `controllers` and aggregate: evaluate's work after planning and SumLog
+    (`expoctl bench` calls it with its own controller list). `references`: {name: "module:attr"} for controllers
+    given by import path, re-imported in each worker before it builds them."""
+    references = dict(references or {})
     # the oracle is the slowest run: start those first so the pool does not end on one long job
-    order = sorted(ecfg.controllers, key=lambda c: c != "oracle")
-    jobs = [RunJob(w, c, inputs, sumlog, None if model_path is None else str(model_path)) for c in order for w in windows]
+    order = sorted(controllers, key=lambda c: c != "oracle")
+    model = None if model_path is None else str(model_path)
+    jobs = [RunJob(w, c, inputs, sumlog, model, reference=references.get(c)) for c in order for w in windows]
     rows: list[dict] = []
     summaries: list[dict] = []
     thumbs: dict[str, dict] = {}
-    for job, (r, s, tb) in run_jobs(jobs, ecfg.n_jobs, progress, parallel):
+    for job, (r, s, tb) in run_jobs(jobs, inputs.evaluate.n_jobs, progress, parallel):
         rows.extend(r)
         summaries.append(s)
         thumbs[job.run_id] = tb
     frames = add_section_ids(pd.DataFrame(rows))
     runs = pd.DataFrame(summaries).sort_values("run_id").reset_index(drop=True)
-    sections = section_stats(frames, ecfg.min_section_frames)
+    sections = section_stats(frames, inputs.evaluate.min_section_frames)
     metrics = build_metrics(sections, runs)
-    problems = validate_metrics(metrics, ecfg.controllers, [s for s in ROUTE_SPLITS if s in ecfg.splits],
-                                ecfg.frontends)
+    problems = validate_metrics(metrics, tuple(controllers), [s for s in ROUTE_SPLITS if s in inputs.evaluate.splits],
+                                inputs.evaluate.frontends)
     if problems:
         raise ValueError("metrics.json would break its schema (docs/evaluation.md): " + "; ".join(problems))
     return EvaluationResult(frames, runs, sections, metrics, sumlog, thumbs, windows)
