@@ -1,0 +1,1 @@
+"""The public closed-loop benchmark: a gymnasium environment, `expoctl bench` and its leaderboard (docs/benchmark.md)."""
