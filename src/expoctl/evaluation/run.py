@@ -67,6 +67,33 @@ def image_stats(grey: np.ndarray) -> dict[str, float]:
     }
 
 
+class PairMatches:
+    """Each frame's features and inlier matches (NFM) with the frame before it, per front end, on the grey image and
+    (with `sumlog`) on its SumLog transform: the one copy of evaluate's rule (`WindowRun.record`), which the benchmark
+    environment's reward uses too (expoctl.bench.env). A pair's RANSAC seed is `pair_seed(sequence, k, variant)`."""
+
+    def __init__(self, frontends: dict[str, Any], sequence: str, sumlog: dict[str, SumLogParams] | None = None):
+        self.frontends, self.sequence, self.sumlog = frontends, sequence, sumlog
+        self._prev: dict[str, Any] = {}
+
+    def record(self, k: int, img: np.ndarray, grey: np.ndarray, row: dict[str, Any]) -> None:
+        """Add nfeat_<variant>, nmatch_<variant> and nfm_<variant> of frame `k` (H×W×3 `img`, its `grey`) to `row`,
+        in `variants` order per front end; NaN matches for the first frame recorded (no predecessor)."""
+        for name, fe in self.frontends.items():
+            images = [(name, grey)]
+            if self.sumlog is not None:
+                images.append((f"{name}_sumlog", sumlog_uint8(img, self.sumlog[name])))
+            for variant, g in images:
+                ext = fe.extract(g)
+                row[f"nfeat_{variant}"] = int(fe.n_features(ext))
+                if variant in self._prev:
+                    n_m, n_i = fe.match(self._prev[variant], ext, pair_seed(self.sequence, k, variant))
+                    row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = float(n_m), float(n_i)
+                else:  # the window's first frame has no predecessor in the window
+                    row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = np.nan, np.nan
+                self._prev[variant] = ext
+
+
 class WindowRun:
     """One controller's run over one window, fed frame by frame: `loop` is its closed loop (warm-up frames included,
     so several runs can share the window's renders in lockstep, `drive_lockstep`), `record` takes each frame the
@@ -103,7 +130,7 @@ class WindowRun:
         self.thumb_width, self.thumb_every, self.thumb_span_s = thumb_width, thumb_every, thumb_span_s
         self.timed = TimedController(controller)
         self.rows: list[dict] = []
-        self._prev: dict[str, Any] = {}
+        self.matches = PairMatches(frontends, window.sequence, sumlog)
         self._thumbs: list[np.ndarray] = []
         self._thumb_frames: list[int] = []
         self.seconds = 0.0  # time spent in this run's loop and records (lockstep: shared renders go to the first run)
@@ -138,16 +165,7 @@ class WindowRun:
             "gain_db": float(cam.settings.gain_db), "exposure_us": float(cam.settings.exposure_us),
             **image_stats(grey),
         }
-        for name, fe in self.frontends.items():
-            for variant, g in ((name, grey), (f"{name}_sumlog", sumlog_uint8(img, self.sumlog[name]))):
-                ext = fe.extract(g)
-                row[f"nfeat_{variant}"] = int(fe.n_features(ext))
-                if variant in self._prev:
-                    n_m, n_i = fe.match(self._prev[variant], ext, pair_seed(window.sequence, k, variant))
-                    row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = float(n_m), float(n_i)
-                else:  # the window's first frame has no predecessor in the window
-                    row[f"nmatch_{variant}"], row[f"nfm_{variant}"] = np.nan, np.nan
-                self._prev[variant] = ext
+        self.matches.record(k, img, grey, row)
         if self.thumb_width and k % self.thumb_every == 0 and abs(row["portal_dt_s"]) <= self.thumb_span_s:
             h = max(1, int(round(img.shape[0] * self.thumb_width / img.shape[1])))
             self._thumbs.append(cv2.resize(img, (self.thumb_width, h), interpolation=cv2.INTER_AREA))

@@ -90,16 +90,22 @@ class EvaluationResult:
 
 def plan_windows(inputs: EvaluationInputs, project_root: str | os.PathLike = ".") -> list[Window]:
     """Every window of the evaluation, in order (loads the cities' geometry, renders nothing)."""
-    ecfg = inputs.evaluate
     windows: list[Window] = []
     for split in ROUTE_SPLITS:
-        plan = ecfg.splits.get(split)
-        if plan is not None:
-            windows += city_windows(inputs, project_root, split, split, plan, f"evaluate.splits.{split}",
-                                    inputs.rig.fps, ecfg.warmup_frames)
+        if split in inputs.evaluate.splits:
+            windows += split_windows(inputs, project_root, split)
     if not windows:
         raise ConfigError("evaluate.splits", "plans no window (give validation and/or test a plan)")
     return windows
+
+
+def split_windows(inputs: EvaluationInputs, project_root: str | os.PathLike, split: str,
+                  plan: SplitPlan | None = None) -> list[Window]:
+    """evaluate's windows of route split `split` (validation | test), in plan order; `plan`: another plan of the same
+    split (the environment plans one traversal at a time, expoctl.bench.env), the same windows where they overlap."""
+    plan = inputs.evaluate.splits[split] if plan is None else plan
+    return city_windows(inputs, project_root, split, split, plan, f"evaluate.splits.{split}", inputs.rig.fps,
+                        inputs.evaluate.warmup_frames)
 
 
 def city_windows(inputs: EvaluationInputs, project_root: str | os.PathLike, label: str, city_key: str, plan: SplitPlan,
@@ -218,29 +224,18 @@ def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
     share is rendered once), one renderer (with `evaluate.share_render`, one sharp render per frame serves every
     exposure of every run) and one sensor that draws each frame's normal noise field once (`Sensor.remember_noise`).
     Every run's images are those it would get alone: the caches hold pure functions of (frame, exposure)."""
-    import expoctl.sim.oracle as oracle_mod
     from expoctl.controllers.base import Settings
     from expoctl.controllers.registry import ControllerContext, make_controller, needs, resolve_controller
-    from expoctl.evaluation.run import WindowFrames, WindowRun, drive_lockstep
+    from expoctl.evaluation.run import WindowRun, drive_lockstep
     from expoctl.features.pipeline import make_frontend
-    from expoctl.sim.closed_loop import RouteScene, make_sensors, rig_metadata
-    from expoctl.world import load_city_cached
-    from expoctl.vo.frame_to_frame import intrinsics_matrix
 
     w = jobs[0].window
     if any(job.window != w for job in jobs):
         raise ValueError("run_window: every job must drive the same window")
     inputs = jobs[0].inputs
-    ecfg, fcfg, rig, render = inputs.evaluate, inputs.features, inputs.rig, inputs.render
-    city = load_city_cached(w.city, w.city_dir)
-    traj = _traversal_cached(city, w, rig.fps)
-    route = RouteScene(city, traj, rig, render)
-    scene = oracle_mod.CachedScene(route)
-    sensors, _ = make_sensors(inputs.sensor, render, 1, ecfg.sensor_randomisation, w.seed)
-    sensor = sensors[0].remember_noise()
-    section, dt, kind = window_annotations(traj, w.start, w.stop)
-    window = WindowFrames(w.sequence, range(w.start, w.stop), section, dt, kind, traj.poses[w.start:w.stop])
-    K = intrinsics_matrix(rig_metadata(rig, render)["intrinsics"])
+    ecfg, fcfg = inputs.evaluate, inputs.features
+    sim = window_sim(inputs, w)
+    scene, sensor, route, window, K = sim.scene, sim.sensor, sim.route, sim.frames, sim.K
     runs, warmups = [], []
     for job in jobs:
         if job.reference:  # a controller given by import path registers in this process too (spawned workers)
@@ -277,6 +272,43 @@ def run_window(jobs: tuple[RunJob, ...]) -> list[tuple[list[dict], dict, dict]]:
             summary["oracle_ms_median"] = float(np.median(timings)) if timings else np.nan
         out.append((rows, summary, thumbs))
     return out
+
+
+@dataclass(frozen=True)
+class WindowSim:
+    """What every run of one window drives (`window_sim`): the trajectory, the route's scene (`route`, its renderer)
+    behind the per-exposure cache every run reads (`scene`), the window's one sensor, which draws each frame's noise
+    once (`Sensor.remember_noise`), the window's frames and annotations, and camera 1's intrinsics."""
+
+    trajectory: Any
+    route: Any  # expoctl.sim.closed_loop.RouteScene
+    scene: Any  # expoctl.sim.oracle.CachedScene over `route`
+    sensor: Any  # expoctl.camera.sensor.Sensor, noise remembered
+    frames: Any  # expoctl.evaluation.run.WindowFrames of [start, stop)
+    K: np.ndarray
+
+
+def window_sim(inputs: EvaluationInputs, w: Window) -> WindowSim:
+    """The one setup of a window's simulation, shared by evaluate (`run_window`) and the benchmark environment
+    (expoctl.bench.env), so both see the same scene, sensor parameters, fixed-pattern noise and noise seeds:
+    the sensor is randomised from the window's seed; the renderer is `inputs.render`."""
+    import expoctl.sim.oracle as oracle_mod
+    from expoctl.evaluation.run import WindowFrames
+    from expoctl.sim.closed_loop import RouteScene, make_sensors, rig_metadata
+    from expoctl.vo.frame_to_frame import intrinsics_matrix
+    from expoctl.world import load_city_cached
+
+    rig, render = inputs.rig, inputs.render
+    city = load_city_cached(w.city, w.city_dir)
+    traj = _traversal_cached(city, w, rig.fps)
+    route = RouteScene(city, traj, rig, render)
+    scene = oracle_mod.CachedScene(route)
+    sensors, _ = make_sensors(inputs.sensor, render, 1, inputs.evaluate.sensor_randomisation, w.seed)
+    sensor = sensors[0].remember_noise()
+    section, dt, kind = window_annotations(traj, w.start, w.stop)
+    frames = WindowFrames(w.sequence, range(w.start, w.stop), section, dt, kind, traj.poses[w.start:w.stop])
+    K = intrinsics_matrix(rig_metadata(rig, render)["intrinsics"])
+    return WindowSim(traj, route, scene, sensor, frames, K)
 
 
 _TRAJ_CACHE: dict[tuple, Any] = {}
