@@ -3,7 +3,8 @@
 MLflow: besides the stage run (params, headline metrics, metrics.json), one nested child run per (controller, city)
 tagged controller / city / route_split, with that pair's section statistics, tracking success, VO error and timing
 as metrics and its timeline figure (NFM and gain/exposure around the portals) as an artifact — so the MLflow UI
-compares controllers side by side (select the child runs of one evaluate run, "Compare").
+compares controllers side by side: the experiment's saved view "Compare controllers" lists the last evaluate run's
+child runs flat with the leaderboard metrics as columns (stages/tracking.py set_compare_view, docs/pipeline.md).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from expoctl.host import host_cpu
 from expoctl.net.checkpoint import check_checkpoint
 from expoctl.parallel import ParallelConfig
 from stages.common import PROJECT_ROOT, stage_main
+from stages.tracking import set_compare_view
 
 log = logging.getLogger(__name__)
 
@@ -126,6 +128,9 @@ def log_child_runs(result, tracker) -> list[str]:
                     if controller_timeline(result.frames, split, ctrl, fig):
                         mlflow.log_artifact(str(fig), artifact_path="figures")
                     ids.append(child.info.run_id)
+    # the UI folds these under the stage run; its saved view lists this run's controllers flat, metrics as columns
+    view = set_compare_view(experiment_id, evaluate_run=parent)
+    log.info("MLflow: this evaluation's controllers side by side at <mlflow ui>/%s", view)
     return ids
 
 

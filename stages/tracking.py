@@ -19,6 +19,10 @@ from stages.keys import config_hash, select_keys, stage_keys
 from stages.project import PROJECT_ROOT, main_project_root
 
 EXPERIMENT_NAME = "expoctl"
+# the per-(controller, city) metrics the MLflow UI's saved view shows as columns (docs/pipeline.md#the-mlflow-ui),
+# sorted by the first: the paper's headline, the worst dynamic-window NFM
+LEADERBOARD_METRICS = ("dynamic.orb.min_nfm", "dynamic.orb.median_nfm", "dynamic.viso.min_nfm",
+                       "static.orb.median_nfm", "tracking_success_rate", "controller_ms_median_mean")
 
 
 def tracking_uri() -> str:
@@ -29,18 +33,35 @@ def tracking_uri() -> str:
 def init_tracking(experiment: str = EXPERIMENT_NAME) -> str:
     """Create the store and the experiment (artifacts beside the store) if missing; return the experiment id.
 
-    Run this once before any parallel fan-out: two processes migrating a fresh SQLite store at once race.
+    The pipeline's experiment (also one made before this existed) is set up to open in the MLflow UI on its runs
+    table with the leaderboard columns (`set_compare_view`). Run this once before any parallel fan-out: two
+    processes migrating a fresh SQLite store at once race.
     """
     import mlflow
 
     mlflow.set_tracking_uri(tracking_uri())
     exp = mlflow.get_experiment_by_name(experiment)
     if exp is not None:
-        return exp.experiment_id
-    artifacts = None
-    if tracking_uri().startswith("sqlite:"):
-        artifacts = (main_project_root() / "mlartifacts").as_uri()
-    return mlflow.create_experiment(experiment, artifact_location=artifacts)
+        experiment_id = exp.experiment_id
+    else:
+        artifacts = None
+        if tracking_uri().startswith("sqlite:"):
+            artifacts = (main_project_root() / "mlartifacts").as_uri()
+        experiment_id = mlflow.create_experiment(experiment, artifact_location=artifacts)
+    if experiment == EXPERIMENT_NAME:
+        set_compare_view(experiment_id)
+    return experiment_id
+
+
+def set_compare_view(experiment_id: str, evaluate_run: str | None = None) -> str:
+    """Make the MLflow UI open the experiment on the runs table, the per-controller runs flat with the leaderboard
+    metrics as columns; `evaluate_run`: show that evaluate run's controllers (None: keep the view's filter). Writes
+    only what changed (one read per stage run otherwise). Returns the view's address below the server root."""
+    from expoctl.tracking_ui import set_runs_view
+
+    search = None if evaluate_run is None else f"tags.parent_stage_run = '{evaluate_run}'"
+    return set_runs_view(experiment_id, metrics=LEADERBOARD_METRICS, order_by=LEADERBOARD_METRICS[0],
+                         search_filter=search)
 
 
 def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
