@@ -7,6 +7,7 @@
   expoctl record --camera1 ID --camera2 ID ...   record dual-camera training data on two real cameras
   expoctl cameras                                list the cameras found (ids for --camera)
   expoctl latency --camera ID                    a camera's actuation delay, measured from its images
+  expoctl bench [--controller NAME|module:Class]  score controllers on the benchmark routes: a leaderboard
 
 Each subcommand lives in a module exposing `add_arguments(parser)` and `run(args) -> int`.
 """
@@ -27,6 +28,7 @@ SUBCOMMANDS = {
     "record": ("expoctl.hardware.record_cli", "record dual-camera training data on two real cameras"),
     "cameras": ("expoctl.hardware.list_cli", "list the cameras found"),
     "latency": ("expoctl.hardware.latency_cli", "measure a camera's actuation delay from its images"),
+    "bench": ("expoctl.bench.cli", "score a controller on the benchmark routes against the baselines and the oracle"),
 }
 
 

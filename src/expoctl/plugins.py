@@ -92,7 +92,7 @@ class Registry:
             build = factory if factory is not None else _class_factory(obj)
             module = getattr(obj, "__module__", None) or "?"
             package = self._loading_package or _distribution_of(module)
-            problem = self._problem_of(name, obj if inspect.isclass(obj) else None, config)
+            problem = self.problem_of(name, obj if inspect.isclass(obj) else None, config)
             taken = self._entries.get(name)
             if problem is None and package != BUILTIN and taken is not None and taken.package == BUILTIN:
                 problem = f"its name is taken by the built-in {self.kind}"
@@ -113,7 +113,8 @@ class Registry:
         self._entries.pop(name, None)
         self._broken.pop(name, None)
 
-    def _problem_of(self, name: str, cls: type | None, config: type) -> str | None:
+    def problem_of(self, name: str, cls: type | None, config: type) -> str | None:
+        """Why `cls` with `config` cannot register as `name` (None: it can)."""
         if not name or not name.isidentifier():
             return f"the name must be an identifier (it is a config key and a column), got {name!r}"
         if not (inspect.isclass(config) and dataclasses.is_dataclass(config)):

@@ -134,10 +134,19 @@ def resolve_controller(ref: str, key: str = "controller") -> str:
     if taken is not None:
         raise ConfigError(key, f"{ref!r} would register as {name!r}, a name taken by {taken.origin}; give the class "
                           "another `name`")
-    CONTROLLERS.register(name, config=config, label=getattr(obj, "label", None) or name)(obj)
-    if name not in CONTROLLERS:
-        package, problem = CONTROLLERS.broken().get(name, ("?", "it did not register"))
+    problem = CONTROLLERS.problem_of(name, obj, config)
+    if problem:
         raise ConfigError(key, f"{ref!r}: {problem}")
+    factory = None
+    try:
+        params = inspect.signature(obj).parameters
+    except (TypeError, ValueError):
+        params = {"config": None}
+    if not params:  # a class built with no arguments (no config of its own)
+        factory = lambda _config, _context: obj()  # noqa: E731
+    elif set(params) == {"context"}:
+        factory = lambda _config, context: obj(context=context)  # noqa: E731
+    CONTROLLERS.register(name, config=config, factory=factory, label=getattr(obj, "label", None) or name)(obj)
     return name
 
 
