@@ -28,6 +28,7 @@ from typing import Any, Callable
 from expoctl.errors import InputError
 from stages.iterations import for_iteration
 from stages.keys import LAST_ITERATION, stage_name
+from stages.numerics import numerics_for
 from stages.project import PROJECT_ROOT, load_resolved
 from stages.tracking import Tracker, tracked_run
 
@@ -49,9 +50,10 @@ def stage_main(stage: str, run: Callable[[dict[str, Any], Tracker], None]) -> No
     logging.getLogger("alembic").setLevel(logging.WARNING)
     try:
         cfg = for_iteration(load_resolved(), args.iteration)
+        numerics = numerics_for(cfg)  # the mode stages/__init__.py applied at start; its record goes to MLflow
         if copied_when_disabled(stage, cfg):
             return
-        with tracked_run(name, cfg) as tracker:
+        with tracked_run(name, cfg, numerics) as tracker:
             run(cfg, tracker)
     except InputError as exc:
         print(f"expoctl {stage}: error: {exc}\n{outputs_left(name, started)}", file=sys.stderr)

@@ -19,6 +19,7 @@ from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.features.registry import FRONTENDS
 from expoctl.labels.samples import SampleConfig
 from expoctl.labels.targets import LabelConfig
+from expoctl.numerics import NumericsConfig
 from expoctl.parallel import ParallelConfig
 from expoctl.raw.ingest import IngestConfig
 from expoctl.report.results import ReportConfig
@@ -33,7 +34,7 @@ from stages.train import configs as train_configs
 #: The resolved config's top-level keys: conf/config.yaml's groups (its defaults list) and own keys, and what the
 #: scale presets (conf/scale/*.yaml, package _global_) add. tests/stages/test_config_check.py checks it against conf/.
 TOP_LEVEL_KEYS = ("sensor", "world", "rig", "controllers", "collect", "ingest", "features", "labels", "samples",
-                  "model", "train", "select_model", "evaluate", "report", "parallel", "seed", "paths",
+                  "model", "train", "select_model", "evaluate", "report", "parallel", "numerics", "seed", "paths",
                   "scale_name") + tuple(
     f"iteration{n}" for n in range(2, LAST_ITERATION + 1))
 #: `paths` (conf/config.yaml); an `iteration<N>.paths` block overrides some of them, all but the final model
@@ -54,6 +55,7 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
         group.from_dict(top.value(key, None), key, problems)
     problems.collect(train_configs, cfg)  # model, train, seed: as the train stage builds them
     ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems)  # where jobs run (as collect reads it)
+    NumericsConfig.from_dict(top.value("numerics", None), "numerics", problems)  # as every stage's boot reads it
     select = SelectConfig.from_dict(top.value("select_model", None), "select_model", problems)
     # evaluate, features (every front end's typed config), world, rig, sensor, every controllers.<name> section
     evaluation = EvaluationInputs.from_resolved(cfg, problems)

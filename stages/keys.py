@@ -16,8 +16,8 @@ from expoctl.errors import InputError
 from stages.project import RESOLVED_CONFIG
 from stages.table import LAST_ITERATION, STAGE_BY_NAME, STAGES, config_keys
 
-__all__ = ["LAST_ITERATION", "STAGE_KEYS", "config_hash", "select_keys", "split_stage_name", "stage_keys",
-           "stage_name"]
+__all__ = ["LAST_ITERATION", "STAGE_KEYS", "config_hash", "runtime_keys", "select_keys", "split_stage_name",
+           "stage_keys", "stage_name"]
 
 #: The keys each iteration-1 stage reads (stages that read none, guard and compose, are not listed); the later
 #: iterations' are `stage_keys("<name>_iter@<N>")`.
@@ -50,6 +50,14 @@ def stage_keys(stage: str) -> list[str]:
     if entry is None or (n > 1 and (not entry.iterated or n > LAST_ITERATION)):
         return []
     return config_keys(entry, n)
+
+
+def runtime_keys(stage: str) -> list[str]:
+    """The keys a DVC stage reads that only choose where and how fast it runs (stages/table.py `Stage.runtime_keys`):
+    not its DVC params, not in its `config_hash`; its MLflow run logs them. [] for a name that is no stage."""
+    base, _ = split_stage_name(stage)
+    entry = STAGE_BY_NAME.get(base)
+    return list(entry.runtime_keys) if entry is not None and stage_keys(stage) else []
 
 
 def select_keys(cfg: dict[str, Any], keys: list[str]) -> dict[str, Any]:

@@ -1,5 +1,6 @@
-"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report), and
-reports/headline.json, the pipeline's one DVC metric (expoctl.report.headline)."""
+"""report stage: reports/metrics.json + reports/eval/ → reports/results.md, reports/figures/*.png (expoctl.report),
+reports/headline.json, the pipeline's one DVC metric (expoctl.report.headline), and reports/numerics.json: the numeric
+mode, library versions and CPU of the run (expoctl.numerics; docs/reproducibility.md)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from expoctl.net.checkpoint import check_checkpoint
 from expoctl.report.headline import headline_metrics
 from expoctl.report.results import ReportConfig, build_report, load_eval
 from stages.common import PROJECT_ROOT, stage_main
+from stages.numerics import stage_record
 
 log = logging.getLogger(__name__)
 
@@ -25,7 +27,10 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     written = build_report(reports_dir, rcfg)
     write_json(headline, reports_dir / "headline.json")
     written["headline"] = reports_dir / "headline.json"
-    tracker.log_metrics({"n_figures": len(written) - 2})
+    # which mode, libraries and CPU: the one file of the run that names its host (the fixture manifest's exception)
+    write_json(stage_record(cfg), reports_dir / "numerics.json")
+    written["numerics"] = reports_dir / "numerics.json"
+    tracker.log_metrics({"n_figures": len(written) - 3})
     for p in written.values():
         tracker.log_artifact(p, artifact_path="report")
     log.info("wrote %s", ", ".join(str(p.relative_to(root)) if p.is_relative_to(root) else str(p)

@@ -73,6 +73,10 @@ class Stage:
     later_keys: tuple[str | Each, ...] = ()
     later_deps: tuple[str | Dep | Each, ...] = ()
     later_outs: tuple[Out, ...] = ()
+    #: keys of configs/resolved.yaml it reads that are NOT DVC params: they choose only where and how fast its jobs
+    #: run, never a byte of its outputs (tests/evaluation/test_ray_backend.py), so changing them re-runs nothing
+    #: (tests/pipeline/test_dvc_pipeline.py). Its MLflow run logs them, its `config_hash` leaves them out.
+    runtime_keys: tuple[str, ...] = ()
     #: params files it tracks whole (compose: all of params.yaml, so a stray key reaches it and is refused)
     whole_params: tuple[str, ...] = ()
     always_changed: bool = False
@@ -87,9 +91,13 @@ LATER_KEYS: tuple[str | Each, ...] = ("{block}.enabled", "{block}.paths", Each((
 #: The raw data of every earlier iteration, which a later iteration's ingest reads again (and features looks up).
 EARLIER_RAW = Each(("{raw_dir}",))
 COPIED = "copied when the iteration is disabled (stages/common.py COPIED_WHEN_DISABLED)"
-#: What a closed-loop rollout of the simulated rig reads. `parallel` (where the jobs run, never what they compute) is
-#: read by the stages that fan out.
+#: What a closed-loop rollout of the simulated rig reads.
 ROLLOUT_KEYS = ("seed", "sensor", "world", "rig")
+#: Every stage that computes runs under the numeric mode (stages/numerics.py): its bytes can depend on it.
+NUMERIC_KEYS = ("numerics",)
+#: `parallel` (backend, address: where the jobs run, never what they compute) is read by the stages that fan out, as a
+#: runtime key: not a DVC param, so pointing a finished run at a Ray cluster re-runs nothing.
+FAN_OUT = ("parallel",)
 
 STAGES: tuple[Stage, ...] = (
     Stage("guard", outs=(Out("configs/guard.ok", cache=False), Out("configs/plugins.yaml", cache=False)),
@@ -106,8 +114,9 @@ STAGES: tuple[Stage, ...] = (
               "it tracks all of params.yaml, so a key other than `overrides` (what `dvc exp run -S train.lr=...` "
               "adds) reaches it and is refused.")),
     Stage("collect",
-          keys=(*ROLLOUT_KEYS, "collect", "collect_controllers.{block}", "plugins.controllers", "paths.raw_dir",
-                "parallel"),
+          keys=(*ROLLOUT_KEYS, *NUMERIC_KEYS, "collect", "collect_controllers.{block}", "plugins.controllers",
+                "paths.raw_dir"),
+          runtime_keys=FAN_OUT,
           deps=(Dep("data/recordings", "collect.source: recordings copies these; never an output (stages/guard.py)",
                     first_only=True),),
           outs=(Out("{raw_dir}"),),
@@ -121,34 +130,36 @@ STAGES: tuple[Stage, ...] = (
               "The paper's second data-collection iteration, and a third beyond the paper (conf/config.yaml "
               "iteration<N>): the previous iteration's network is camera 1's reference if it passes the saturation "
               "probe, and the model is retrained on all data so far.")),
-    Stage("ingest", keys=("ingest", "paths.raw_dir", "paths.frames", "paths.images_dir"),
+    Stage("ingest", keys=(*NUMERIC_KEYS, "ingest", "paths.raw_dir", "paths.frames", "paths.images_dir"),
           deps=("{raw_dir}",), outs=(Out("{frames}"), Out("{images_dir}")),
           iterated=True, later_deps=(Dep("{prev_frames}", COPIED), "{prev_images_dir}", EARLIER_RAW)),
-    Stage("features", keys=("features", "plugins.frontends", "paths.frames", "paths.features", "paths.matches",
-                            "parallel"),
+    Stage("features", keys=(*NUMERIC_KEYS, "features", "plugins.frontends", "paths.frames", "paths.features",
+                            "paths.matches"),
+          runtime_keys=FAN_OUT,
           deps=("{frames}", "{raw_dir}"), outs=(Out("{features}"), Out("{matches}")),
           iterated=True, later_deps=(Dep("{prev_frames}", "the previous iteration's counts are reused"),
                                      "{prev_features}", "{prev_matches}", EARLIER_RAW)),
-    Stage("labels", keys=("labels", "plugins.frontends", "paths.frames", "paths.features", "paths.matches",
+    Stage("labels", keys=(*NUMERIC_KEYS, "labels", "plugins.frontends", "paths.frames", "paths.features", "paths.matches",
                           "paths.labels", "paths.reports_dir"),
           deps=("{frames}", "{features}", "{matches}"),
           outs=(Out("{labels}"), Out("{reports_dir}/labels.md", cache=False),
                 Out("{reports_dir}/labels.json", cache=False)),
           iterated=True, later_deps=(Dep("{prev_labels}", COPIED), "{prev_reports_dir}/labels.md",
                                      "{prev_reports_dir}/labels.json")),
-    Stage("samples", keys=("samples", "paths.frames", "paths.labels", "paths.samples"),
+    Stage("samples", keys=(*NUMERIC_KEYS, "samples", "paths.frames", "paths.labels", "paths.samples"),
           deps=("{frames}", "{labels}"), outs=(Out("{samples}"),),
           iterated=True, later_deps=(Dep("{prev_samples}", COPIED),)),
-    Stage("train", keys=("seed", "model", "train", "sensor", "paths.samples", "paths.frames", "paths.images_dir",
+    Stage("train", keys=(*NUMERIC_KEYS, "seed", "model", "train", "sensor", "paths.samples", "paths.frames", "paths.images_dir",
                          "paths.model", "paths.reports_dir"),
           deps=("{samples}", "{frames}", "{images_dir}"),
           outs=(Out("{model}"), Out("{model_onnx}"), Out("{reports_dir}/train.json", cache=False)),
           iterated=True, later_deps=(Dep("{prev_model}", "copied when the iteration is disabled (stages/train.py)"),
                                      "{prev_model_onnx}", "{prev_reports_dir}/train.json")),
     Stage("select_model",
-          keys=(*ROLLOUT_KEYS, "controllers", "features", "evaluate", "select_model", "plugins", "paths.model",
-                "paths.final_model", "paths.frames", "paths.reports_dir", "parallel",
+          keys=(*ROLLOUT_KEYS, *NUMERIC_KEYS, "controllers", "features", "evaluate", "select_model", "plugins",
+                "paths.model", "paths.final_model", "paths.frames", "paths.reports_dir",
                 Each(("{block}.enabled", "{block}.paths.model"), first=2, upto="last")),
+          runtime_keys=FAN_OUT,
           deps=(Each(("{model}", "{model_onnx}"), upto="last"), "{frames}", "{raw_dir}"),
           outs=(Out("{final_model}"), Out("{final_model_onnx}"), Out("{reports_dir}/select_model.json", cache=False)),
           comment=(
@@ -157,16 +168,19 @@ STAGES: tuple[Stage, ...] = (
               "training city in closed loop with evaluate's protocol. The choice is copied to the final model, which "
               "evaluate drives (conf/select_model/default.yaml).")),
     Stage("evaluate",
-          keys=(*ROLLOUT_KEYS, "controllers", "features", "evaluate", "plugins", "paths.final_model", "paths.frames",
-                "paths.reports_dir", "parallel"),
+          keys=(*ROLLOUT_KEYS, *NUMERIC_KEYS, "controllers", "features", "evaluate", "plugins", "paths.final_model",
+                "paths.frames", "paths.reports_dir"),
+          runtime_keys=FAN_OUT,
           deps=("{final_model}", "{final_model_onnx}", "{frames}", "{raw_dir}"),
           outs=(Out("{reports_dir}/eval"), Out("{reports_dir}/metrics.json", cache=False))),
-    Stage("report", keys=("report", "paths.reports_dir", "paths.final_model"),
+    Stage("report", keys=(*NUMERIC_KEYS, "report", "paths.reports_dir", "paths.final_model"),
           deps=("{reports_dir}/metrics.json", "{reports_dir}/eval", "{reports_dir}/select_model.json",
                 "{final_model}"),
           outs=(Out("{reports_dir}/results.md", cache=False), Out("{reports_dir}/figures", cache=False),
                 # the one DVC metric: a dozen headline numbers (src/expoctl/report/headline.py); the full tables
                 # are the outputs reports/metrics.json, reports/eval/ and each iteration's train.json
+                # the numeric mode, libraries and CPU the report ran with (each stage's own: its MLflow run's tags)
+                Out("{reports_dir}/numerics.json", cache=False),
                 Out("{reports_dir}/headline.json", cache=False, metric=True))),
 )
 

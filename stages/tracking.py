@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from expoctl.host import host_cpu
-from stages.keys import config_hash, select_keys, stage_keys
+from stages.keys import config_hash, runtime_keys, select_keys, stage_keys
 from stages.project import PROJECT_ROOT, main_project_root
 
 EXPERIMENT_NAME = "expoctl"
@@ -119,17 +119,24 @@ class Tracker:
 
 
 @contextmanager
-def tracked_run(stage: str, cfg: dict[str, Any]) -> Iterator[Tracker]:
-    """One MLflow run for one stage execution, with params = the stage's config keys."""
+def tracked_run(stage: str, cfg: dict[str, Any], numerics: dict[str, Any] | None = None) -> Iterator[Tracker]:
+    """One MLflow run for one stage execution, with params = the stage's config keys (and its runtime keys, which
+    `config_hash` leaves out: they never change a result) and, given `numerics` (expoctl.numerics.record), tags
+    saying which numeric mode, libraries and CPU flags it ran with."""
     import mlflow
 
     experiment_id = init_tracking()
     sub = select_keys(cfg, stage_keys(stage))
+    runtime = {k: v for k, v in select_keys(cfg, [k for k in runtime_keys(stage) if k in cfg]).items()}
     with mlflow.start_run(experiment_id=experiment_id, run_name=stage):
         tracker = Tracker(mlflow)
         tracker.set_tags({"stage": stage, "git_commit": git_commit(), "config_hash": config_hash(sub),
                           "scale": cfg.get("scale_name", "unknown"), "host_cpu": host_cpu()})
-        tracker.log_params(sub)
+        if numerics is not None:
+            from expoctl.numerics import tags as numerics_tags
+
+            tracker.set_tags(numerics_tags(numerics))
+        tracker.log_params({**sub, **runtime})
         t0 = time.perf_counter()
         yield tracker
         tracker.log_metrics({"stage_seconds": time.perf_counter() - t0})

@@ -214,14 +214,20 @@ def check_reachable(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
 
 
 def runtime_env(upload_code: bool | None = None) -> dict:
-    """The Ray job's runtime environment: one thread per library in every worker and, with `upload_code` (default:
+    """The Ray job's runtime environment: the pinned numeric mode if this process runs in it, one thread per library
+    in every worker and, with `upload_code` (default:
     the environment variable EXPOCTL_RAY_UPLOAD_CODE=1), the expoctl package uploaded so workers import this
     checkout's code. Off by default: on nodes that have the project installed (one host, a shared venv) the upload
     only costs time — numba's on-disk cache is keyed by the source file's path, so an uploaded copy compiles every
     kernel again in every worker (measured: a 6-frame collect sequence took 105 s instead of 3 s)."""
     if upload_code is None:
         upload_code = os.environ.get("EXPOCTL_RAY_UPLOAD_CODE", "0") == "1"
-    env: dict = {"env_vars": dict(SINGLE_THREAD_ENV)}
+    from expoctl.numerics import forwarded_env
+
+    # A Ray worker does not inherit this process's environment (it may be another node's process): the numeric mode
+    # this stage runs in (expoctl.numerics: read at import, so it must be in the worker's environment at start; Ray
+    # starts a separate worker pool per env_vars) goes with every task, and then one thread per library.
+    env: dict = {"env_vars": {**forwarded_env(), **SINGLE_THREAD_ENV}}
     if upload_code:
         import expoctl
 
