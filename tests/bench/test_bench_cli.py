@@ -151,3 +151,18 @@ def test_missing_model_and_bad_numbers(project, tmp_path, capsys, monkeypatch):
     assert "nowhere.pt: no such trained model" in capsys.readouterr().err
     assert main(["bench", "--project", str(root), "--traversals", "0", "--no-mlflow"]) == 2
     assert "--traversals" in capsys.readouterr().err
+
+
+def test_mlflow_view_opens_on_the_leaderboard(benched):
+    """The experiment's saved view lists this invocation's runs with the leaderboard's columns (expoctl.tracking_ui)."""
+    import mlflow
+
+    _, doc, store = benched
+    client = mlflow.MlflowClient(f"sqlite:///{store}")
+    exp = client.get_experiment_by_name("expoctl-bench")
+    view = json.loads(exp.tags["mlflow.sharedViewState.expoctl-bench-leaderboard"])
+    state = json.loads(view["state"])
+    bench_id = client.search_runs([exp.experiment_id])[0].data.tags["bench_id"]
+    assert state["searchFilter"] == f"tags.bench_id = '{bench_id}'"
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
+    assert "test.orb.dynamic_min" in json.dumps(state)

@@ -79,8 +79,11 @@ def run(args: argparse.Namespace) -> int:
 
         configs = {name: plan.inputs.controller_config(name) for name in plan.controllers}
         ids = log_benchmark(tracking, doc, args.out, configs)
-        print(f"expoctl bench: {len(ids)} MLflow runs in experiment {args.experiment!r} ({tracking.uri})",
-              file=sys.stderr)
+        from expoctl.tracking_ui import runs_view_path
+
+        print(f"expoctl bench: {len(ids)} MLflow runs in experiment {args.experiment!r} ({tracking.uri}); "
+              f"`mlflow ui --backend-store-uri {tracking.uri}`, then open "
+              f"{runs_view_path(tracking.experiment_id, 'expoctl-bench-leaderboard')}", file=sys.stderr)
     print(f"expoctl bench: wrote {args.out / 'leaderboard.json'}", file=sys.stderr)
     return 0
 

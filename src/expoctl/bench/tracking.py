@@ -8,7 +8,9 @@ run the table collapses), named by the controller's label, tagged `controller`, 
 filter `tags.bench_id = '…'` to see one leaderboard) and `reference` (true for the oracle); its metrics are the
 leaderboard's cells: `<split>.<frontend>.static_median`, `.dynamic_median`, `.dynamic_min`,
 `<split>.vo_tracked_rate`, `<split>.vo_map_tracked_rate` and `controller_ms`; its params the controller's typed config
-and the benchmark's set-up. Each run also carries leaderboard.json as an artifact.
+and the benchmark's set-up. Each run also carries leaderboard.json as an artifact. The experiment's saved view
+"Leaderboard (latest expoctl bench)" (`expoctl.tracking_ui`) shows the latest invocation's runs with those columns,
+sorted by the last split's dynamic minimum; the experiment's description links to it.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from expoctl.errors import InputError
+from expoctl.tracking_ui import set_runs_view
 
 
 @dataclass(frozen=True)
@@ -52,20 +55,10 @@ def open_experiment(uri: str | None, experiment: str, project: str | os.PathLike
             experiment_id = mlflow.create_experiment(experiment, artifact_location=artifacts)
         else:
             experiment_id = exp.experiment_id
-        _runs_view(experiment_id)
     except Exception as exc:  # MLflow raises many types for a bad store
         raise InputError(f"MLflow store {uri!r}: cannot open experiment {experiment!r} ({type(exc).__name__}: "
                          f"{exc}); give --mlflow-uri or --no-mlflow") from None
     return Tracking(uri, experiment_id)
-
-
-def _runs_view(experiment_id: str) -> None:
-    """Make the UI open the experiment on its runs table (not the GenAI overview)."""
-    try:  # TODO(issue 45): the shared helper lands with the pipeline's MLflow view fix
-        from expoctl.tracking_ui import set_runs_view
-    except ImportError:
-        return
-    set_runs_view(experiment_id)
 
 
 def run_metrics(row: dict[str, Any]) -> dict[str, float]:
@@ -116,4 +109,18 @@ def log_benchmark(tracking: Tracking, doc: dict[str, Any], out_dir: str | os.Pat
             if artifact.is_file():
                 mlflow.log_artifact(str(artifact))
             ids.append(run.info.run_id)
+    set_runs_view(tracking.experiment_id, metrics=view_metrics(doc), tags=["controller", "reference"],
+                  order_by=view_metrics(doc)[0], search_filter=f"tags.bench_id = '{bench_id}'",
+                  view_name="Leaderboard (latest expoctl bench)", view_id="expoctl-bench-leaderboard",
+                  tracking_uri=tracking.uri)
     return ids
+
+
+def view_metrics(doc: dict[str, Any]) -> list[str]:
+    """The columns the UI's saved view shows: each split's dynamic minimum per front end (the first front end of the
+    last split first: the sort key), then VO tracked and the decision time."""
+    b = doc["benchmark"]
+    splits = list(dict.fromkeys(r["split"] for r in doc["leaderboard"]))[::-1]
+    out = [f"{s}.{fe}.dynamic_min" for s in splits for fe in b["frontends"]]
+    out += [f"{s}.vo_tracked_rate" for s in splits] + ["controller_ms"]
+    return out
