@@ -79,8 +79,9 @@ def view_state(metrics: Sequence[str] = (), tags: Sequence[str] = (), params: Se
 
 def note_text(experiment_id: str, view_id: str = VIEW_ID, extra: str = "") -> str:
     """The experiment description: a link to the saved view, which a GenAI-first UI shows above its overview."""
-    text = (f"{NOTE_MARKER} [the runs table, leaderboard metrics as columns]({runs_view_path(experiment_id, view_id)})"
-            f" (or: sidebar *Model training*, then *Views* → *{VIEW_NAME}*)")
+    # one short line: the UI shows the description folded to its first line
+    text = (f"{NOTE_MARKER} [the runs table with the leaderboard metrics]({runs_view_path(experiment_id, view_id)})"
+            f" (sidebar *Model training* → *Views*)")
     return f"{text}\n\n{extra}" if extra else text
 
 

@@ -120,6 +120,12 @@ def test_server_serves_one_run_per_controller_and_city(tmp_path, mlflow_server, 
         assert served["tracking_success_n_runs"] == expected["tracking_success"][1]
         files = _get(mlflow_server, "/api/2.0/mlflow/artifacts/list", run_id=run["info"]["run_id"], path="figures")
         assert any(f["path"].endswith(".png") for f in files.get("files", [])), files
+    # the experiment's saved view (what the UI opens: docs/pipeline.md#the-mlflow-ui) shows this run's children flat
+    exp_tags = {t["key"]: t["value"] for t in exp.get("tags", [])}
+    view = json.loads(json.loads(exp_tags["mlflow.sharedViewState.expoctl-compare-controllers"])["state"])
+    assert view["searchFilter"] == f"tags.parent_stage_run = '{parent}'"
+    assert "metrics.`dynamic.orb.min_nfm`" in view["selectedColumns"]
+    assert exp_tags["mlflow.experimentKind"] == "custom_model_development"
     # the stage run itself carries the headline metrics and metrics.json
     stage_run = _get(mlflow_server, "/api/2.0/mlflow/runs/get", run_id=parent)["run"]
     assert {m["key"] for m in stage_run["data"]["metrics"]} >= {"n_runs", "validation.agae.tracking_success_rate"}

@@ -27,8 +27,11 @@ from pathlib import Path
 from typing import Iterator
 
 STARTUP_TIMEOUT_S = 240.0  # a loaded shared 2-core machine took 87 s to start it
-BROWSER_TIMEOUT_S = 120.0
 VIRTUAL_TIME_MS = 10_000   # page time for the UI to fetch and render; its fetches pause the clock
+# a cap in real time too: a request that never ends would stop the page's clock for good (a loaded 2-core machine
+# took 22 s for a page, and once more than 120 s); then the DOM is dumped as it stands and the caller's checks decide
+PAGE_TIMEOUT_S = 90.0
+BROWSER_TIMEOUT_S = PAGE_TIMEOUT_S + 60.0
 WINDOW = (1600, 900)
 
 # a per-(controller, city) child run's metrics, as stages/evaluate.py child_metrics names them
@@ -103,15 +106,16 @@ class EvaluateRuns:
 
 
 def log_evaluate_runs(controllers=("agae", "oracle", "learned"), splits=("validation", "test"),
-                      other_stages=("compose", "ingest", "train")) -> EvaluateRuns:
+                      other_stages=("compose", "ingest", "train"), experiment: str | None = None) -> EvaluateRuns:
     """Fill the current tracking store the way the pipeline does: `init_tracking`'s experiment, a few stage runs, an
     evaluate run with one child run per (controller, split) tagged and named as stages/evaluate.py names them (made-up
-    but distinct metrics: the controller's index sets its level), and the view `log_child_runs` sets at its end."""
+    but distinct metrics: the controller's index sets its level), and the view `log_child_runs` sets at its end.
+    `experiment`: a plain experiment of that name instead, no view set, as stores were before the view existed."""
     import mlflow
 
     from stages.tracking import init_tracking, set_compare_view
 
-    exp = init_tracking()
+    exp = init_tracking() if experiment is None else mlflow.create_experiment(experiment)
     for stage in other_stages:
         with mlflow.start_run(experiment_id=exp, run_name=stage, tags={"stage": stage}):
             mlflow.log_metric("stage_seconds", 1.0)
@@ -126,7 +130,8 @@ def log_evaluate_runs(controllers=("agae", "oracle", "learned"), splits=("valida
                                         for j, (k, fe, s) in enumerate((k, fe, s) for k in _KINDS
                                                                        for fe in _FRONT_ENDS for s in _STATS)})
                     mlflow.log_metrics({"tracking_success_rate": 1.0, "controller_ms_median_mean": 0.1 * (i + 1)})
-        set_compare_view(exp, evaluate_run=parent.info.run_id)
+        if experiment is None:
+            set_compare_view(exp, evaluate_run=parent.info.run_id)
     return EvaluateRuns(exp, parent.info.run_id, tuple(controllers))
 
 
@@ -144,7 +149,8 @@ def open_page(url: str, screenshot: Path | None = None, virtual_time_ms: int = V
     with tempfile.TemporaryDirectory() as profile:
         cmd = [exe, "--headless", "--no-sandbox",  # root in CI: Chromium's sandbox refuses to run as root
                "--disable-gpu", "--no-first-run", f"--user-data-dir={profile}", "--hide-scrollbars",
-               f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={virtual_time_ms}", "--dump-dom"]
+               f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={virtual_time_ms}",
+               f"--timeout={int(PAGE_TIMEOUT_S * 1000)}", "--dump-dom"]
         if screenshot is not None:
             screenshot.parent.mkdir(parents=True, exist_ok=True)
             cmd.append(f"--screenshot={screenshot}")
