@@ -132,7 +132,7 @@ def city_windows(inputs: EvaluationInputs, project_root: str | os.PathLike, labe
         index = plan.first_traversal + k
         lap = city.traversal(index, None, fps, tseed)
         n = 2 * len(lap.timestamps_ns)  # two laps: every window fits whole somewhere
-        traj = city.traversal(index, n, fps, tseed)
+        traj = _trajectory_cached(city, index, n, fps, tseed)  # the one its windows' runs drive (window_sim)
         spans = _windows_of(traj.portal_times_s, plan, fps, n, warmup_frames, plan_key)
         chosen = range(len(spans)) if plan.windows is None else plan.windows
         for w in chosen:
@@ -317,11 +317,17 @@ _TRAJ_CACHE: dict[tuple, Any] = {}
 def _traversal_cached(city, w: Window, fps: float):
     """One trajectory per (city, traversal, length, fps, seed) per process: every controller of a window reuses it
     (two laps of poses take seconds to compute). Controllers never modify it."""
-    key = (id(city), w.traversal, w.traversal_frames, fps, w.traversal_seed)
+    return _trajectory_cached(city, w.traversal, w.traversal_frames, fps, w.traversal_seed)
+
+
+def _trajectory_cached(city, traversal: int, n_frames: int, fps: float, seed: int):
+    """`city.traversal(traversal, n_frames, fps, seed)`, kept for the last few keys: planning a traversal's windows
+    (city_windows) and driving them (window_sim) compute the same two laps."""
+    key = (id(city), traversal, n_frames, fps, seed)
     if key not in _TRAJ_CACHE:
         if len(_TRAJ_CACHE) >= 4:
             _TRAJ_CACHE.clear()
-        _TRAJ_CACHE[key] = city.traversal(w.traversal, w.traversal_frames, fps, w.traversal_seed)
+        _TRAJ_CACHE[key] = city.traversal(traversal, n_frames, fps, seed)
     return _TRAJ_CACHE[key]
 
 
