@@ -106,7 +106,7 @@ class ExposureEnv(gym.Env):
         self.initial = Settings(ecfg.initial_gain_db, ecfg.initial_exposure_us)
         self._sims: OrderedDict[str, Any] = OrderedDict()
         self._loop = None
-        self.window = None
+        self.window, self.window_index = None, None
 
     # ----------------------------------------------------------------------------------------------- episodes
 
