@@ -248,9 +248,15 @@ def connect_ray(address: str):
         try:
             ray.init(address=address, runtime_env=runtime_env(), log_to_driver=False, logging_level="WARNING",
                      configure_logging=False)
-        except (ConnectionError, TimeoutError, RuntimeError) as exc:
+        except (ConnectionError, TimeoutError, RuntimeError, ray.exceptions.AuthenticationError) as exc:
+            # a cluster with token authentication answers a client without its token with "Unauthenticated" in
+            # Ray's log and a plain ConnectionError here (ray 2.60): say what to check
+            hint = ("" if os.environ.get("RAY_AUTH_MODE", "").lower() == "token" else
+                    "; if the cluster uses token authentication, this process needs RAY_AUTH_MODE=token and the "
+                    "cluster's token (RAY_AUTH_TOKEN, or the file RAY_AUTH_TOKEN_PATH, default ~/.ray/auth_token; "
+                    "docs/scale_out.md)")
             raise ConfigError("parallel.address",
-                              f"could not connect to the Ray cluster at {address}: {exc}") from None
+                              f"could not connect to the Ray cluster at {address}: {exc}{hint}") from None
         _RAY_ADDRESS = address
     return ray
 
