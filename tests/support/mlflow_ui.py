@@ -146,20 +146,38 @@ def open_page(url: str, screenshot: Path | None = None, virtual_time_ms: int = V
     exe = chromium()
     if exe is None:
         raise RuntimeError("no Chromium found: apt-get install chromium")
-    with tempfile.TemporaryDirectory() as profile:
-        cmd = [exe, "--headless", "--no-sandbox",  # root in CI: Chromium's sandbox refuses to run as root
-               "--disable-gpu", "--no-first-run", f"--user-data-dir={profile}", "--hide-scrollbars",
-               f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={virtual_time_ms}",
-               f"--timeout={int(PAGE_TIMEOUT_S * 1000)}", "--dump-dom"]
-        if screenshot is not None:
-            screenshot.parent.mkdir(parents=True, exist_ok=True)
-            cmd.append(f"--screenshot={screenshot}")
-        t0 = time.monotonic()
-        p = subprocess.run([*cmd, url], capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S,
-                           cwd=profile)  # --screenshot without a path would write into the working directory
-        print(f"chromium: {url} in {time.monotonic() - t0:.1f} s")
-    if p.returncode != 0 or not p.stdout.strip():
-        raise RuntimeError(f"chromium failed ({p.returncode}):\n{p.stderr[-3000:]}")
+    for attempt in (1, 2):  # a second try in a fresh profile: a page once hung past its caps on a machine at load 100
+        with tempfile.TemporaryDirectory() as profile:
+            cmd = [exe, "--headless", "--no-sandbox",  # root in CI: Chromium's sandbox refuses to run as root
+                   "--disable-gpu", "--no-first-run", f"--user-data-dir={profile}", "--hide-scrollbars",
+                   f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={virtual_time_ms}",
+                   f"--timeout={int(PAGE_TIMEOUT_S * 1000)}", "--dump-dom"]
+            if screenshot is not None:
+                screenshot.parent.mkdir(parents=True, exist_ok=True)
+                cmd.append(f"--screenshot={screenshot}")
+            t0 = time.monotonic()
+            # its own process group, so that a timeout ends the renderer and GPU processes too, not only the browser
+            proc = subprocess.Popen([*cmd, url], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                    cwd=profile,  # --screenshot without a path writes into the working directory
+                                    start_new_session=True)
+            try:
+                out, err = proc.communicate(timeout=BROWSER_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.communicate()
+                print(f"chromium: {url} timed out after {BROWSER_TIMEOUT_S:.0f} s (try {attempt})")
+                continue
+            finally:
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)  # helpers left behind would keep writing the profile
+                except ProcessLookupError:
+                    pass
+            print(f"chromium: {url} in {time.monotonic() - t0:.1f} s")
+            break
+    else:
+        raise RuntimeError(f"chromium did not load {url} in two tries of {BROWSER_TIMEOUT_S:.0f} s")
+    if proc.returncode != 0 or not out.strip():
+        raise RuntimeError(f"chromium failed ({proc.returncode}):\n{err[-3000:]}")
     text = html.unescape(re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", re.sub(
-        r"<(script|style)\b.*?</\1>", " ", p.stdout, flags=re.S))))
-    return Page(p.stdout, text)
+        r"<(script|style)\b.*?</\1>", " ", out, flags=re.S))))
+    return Page(out, text)
