@@ -191,7 +191,10 @@ def library_versions() -> dict[str, str]:
     """Installed versions, read from package metadata (no import)."""
     from importlib import metadata
 
-    out = {"python": platform.python_version()}
+    # glibc's libm (exp, log, pow: what numba's kernels call) picks FMA variants per CPU and changes between
+    # releases: the one library the pins cannot reach, so its version is recorded with the rest
+    libc, libc_version = platform.libc_ver()
+    out = {"python": platform.python_version(), **({libc: libc_version} if libc else {})}
     for dist in VERSIONED:
         try:
             out[dist] = metadata.version(dist)
