@@ -8,6 +8,7 @@ import math
 
 import gymnasium as gym
 import numpy as np
+import yaml
 import pytest
 from gymnasium.utils.env_checker import check_env
 
@@ -178,3 +179,19 @@ def test_bad_actions_and_options_are_refused():
         env.step([float("nan"), 0.5])
     with pytest.raises(ValueError, match="^action: must be 2 numbers"):
         env.step([0.5])
+
+
+def test_a_projects_resolved_config_is_read_from_its_path(tmp_path):
+    from expoctl.bench.config import packaged_config_text
+
+    path = tmp_path / "configs" / "resolved.yaml"
+    path.parent.mkdir()
+    path.write_text(packaged_config_text("fixture").replace("\nseed: 0\n", "\nseed: 7\n"))
+    env = ExposureEnv("validation", config=path)
+    assert env.episodes.root == tmp_path  # a relative world.city_dir would be under the project
+    assert env.inputs.seed == 7 and env.episodes[0].seed != _env().episodes[0].seed  # the file's, not the packaged
+    with pytest.raises(ValueError, match="^config: .*no such config file"):
+        ExposureEnv("validation", config=tmp_path / "missing.yaml")
+    with pytest.raises(ValueError, match="^config: config key 'evaluate.warmup_frames'"):
+        ExposureEnv("validation", config={**yaml.safe_load(packaged_config_text("fixture")),
+                                          "evaluate": {"warmup_frames": -1, "splits": {"test": {}}}})

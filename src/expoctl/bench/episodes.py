@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from expoctl.bench.errors import EnvArgumentError
+from expoctl.errors import InputError
 from expoctl.evaluation.config import ROUTE_SPLITS, SplitPlan
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import Window, city_windows, split_windows
@@ -47,12 +48,18 @@ def load_inputs(config: str | Path | Mapping | None, scale: str, render_size, pr
         cfg, root = dict(config), Path(project_root or ".")
     elif isinstance(config, (str, Path)):
         path = Path(config)
-        cfg = read_config_file(path)
+        try:
+            cfg = read_config_file(path)
+        except InputError as exc:
+            raise EnvArgumentError(f"config: {exc}") from None
         root = Path(project_root) if project_root is not None else path.resolve().parent.parent
     else:
         raise EnvArgumentError(f"config: must be a path to a resolved config, a mapping or None, got "
                                f"{type(config).__name__}")
-    inputs = EvaluationInputs.from_resolved(cfg)
+    try:
+        inputs = EvaluationInputs.from_resolved(cfg)
+    except InputError as exc:  # every problem of the config, each naming its key
+        raise EnvArgumentError(f"config: {exc}") from None
     if render_size is not None:
         if not (isinstance(render_size, (list, tuple)) and len(render_size) == 2 and all(
                 isinstance(v, int) and not isinstance(v, bool) and 16 <= v <= 8192 for v in render_size)):
