@@ -33,6 +33,17 @@ from expoctl.camera import ranges
 from expoctl.controllers.base import Controller, Settings
 
 
+def observation(image: np.ndarray, settings: Settings, obs_size: tuple[int, int] | None = None) -> dict[str, Any]:
+    """The environment's observation of a frame (H×W×3 uint8 at the render size) exposed with `settings`: the frame,
+    INTER_AREA-resized to `obs_size` (width, height) when set, and [gain_db, exposure_us] in float64. One function,
+    so that a policy driven outside the environment (the `rl` controller) sees exactly what it was trained on."""
+    if obs_size is not None:
+        import cv2
+
+        image = cv2.resize(image, obs_size, interpolation=cv2.INTER_AREA)
+    return {"image": image, "settings": np.array([settings.gain_db, settings.exposure_us], dtype=np.float64)}
+
+
 class _Command(Controller):
     """The agent in the closed loop's controller seat: returns the settings the last action chose."""
 
@@ -182,8 +193,6 @@ class ExposureEnv(gym.Env):
 
     def _deliver(self, rig_frame):
         """(observation, reward, info) of one frame of the loop."""
-        import cv2
-
         from expoctl.evaluation.run import image_stats
         from expoctl.features.pipeline import rgb_to_grey
 
@@ -199,9 +208,7 @@ class ExposureEnv(gym.Env):
         clipped = stats["saturated_frac"] + stats["dark_frac"]
         nfm = {f: row[f"nfm_{f}"] for f in self.frontends}
         reward = self.reward_scale * nfm[self.frontend] - self.clipped_penalty * clipped
-        if self.obs_size is not None:
-            img = cv2.resize(img, self.obs_size, interpolation=cv2.INTER_AREA)
-        obs = {"image": img, "settings": np.array([settings.gain_db, settings.exposure_us], dtype=np.float64)}
+        obs = observation(img, settings, self.obs_size)
         info = {"settings": {"gain_db": settings.gain_db, "exposure_us": settings.exposure_us},
                 "nfm": nfm, "nfeat": {f: row[f"nfeat_{f}"] for f in self.frontends},
                 "clipped_share": clipped, "saturated_share": stats["saturated_frac"],
