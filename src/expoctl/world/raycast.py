@@ -150,7 +150,10 @@ def _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best):
 # depend only on the ray origin (primary rays share the camera's) or only on its direction (shadow rays share the sun's)
 T_O = rt.NCOL  # 5: local u, v, w of the origin; numerators of the end / start plane crossing times
 T_D = rt.NCOL + 5  # 5: local du, dv, dw of the direction; its dot products with the end / start plane normals
-T_NCOL = rt.NCOL + 10
+# the segment's highest open-road surface in its own frame (ground 0, roadside blocks, prop boxes; m): a ray piece
+# above it and rising in this frame cannot hit anything of the segment (trace's light step)
+T_HMAX = rt.NCOL + 10
+T_NCOL = rt.NCOL + 11
 
 
 @njit(cache=True)
@@ -162,6 +165,14 @@ def with_frame_terms(seg, ox, oy, oz, dx, dy, dz):
     out = np.empty((n, T_NCOL))
     out[:, :rt.NCOL] = seg
     for i in range(n):
+        h = 0.0
+        if seg[i, rt.L_OFF] < rt.NO_BLOCK_OFFSET:
+            h = max(h, seg[i, rt.L_H])
+        if seg[i, rt.R_OFF] < rt.NO_BLOCK_OFFSET:
+            h = max(h, seg[i, rt.R_H])
+        for b in range(int(seg[i, rt.N_BOXES])):
+            h = max(h, seg[i, rt.BOX0 + rt.BOX_STRIDE * b + 5])
+        out[i, T_HMAX] = h
         out[i, T_O] = _dot(seg, i, rt.F, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
         out[i, T_O + 1] = _dot(seg, i, rt.R, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
         out[i, T_O + 2] = _dot(seg, i, rt.U, ox - seg[i, 0], oy - seg[i, 1], oz - seg[i, 2])
@@ -176,9 +187,15 @@ def with_frame_terms(seg, ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True)
-def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use_d):
+def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use_d, any_hit):
     """First hit along o + t·d. Returns (t, code, frame_seg, air_seg, air_inside, u, v, w, nu, nv, nw, mat).
-    cull: reject roadside blocks and props the ray cannot reach before their exact test (same result, faster).
+    cull: reject roadside blocks and props the ray cannot reach before their exact test (same result, faster);
+    with cull, an open-road segment whose surfaces all lie below the ray piece (rising in the segment's frame, above
+    its highest block or prop, T_HMAX) takes only the walk to the next segment (light step: the same hits, the same
+    crossing times, since the walk's arithmetic is untouched).
+    any_hit: the caller needs only whether something is hit, not what (shadow rays): return at the first hit found
+    in a segment instead of the nearest one. The code is then a hit code (≥ 1, not SKY) exactly when the nearest hit's
+    would be; the other outputs are those of the first hit found.
     use_o / use_d: read the origin / direction terms of each segment step from the columns T_O / T_D of seg (a
     with_frame_terms table made for this o / d) instead of recomputing them: every primary ray of a frame shares the
     camera origin and every shadow ray the sun direction (same numbers, fewer multiplications per step)."""
@@ -261,6 +278,11 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use
                 t = (seg[i, rt.HILL_H] - ow) / dw
                 if t0 <= t < best:
                     best, code, nu, nv, nw, mat = t, HILLTOP, 0.0, 0.0, 1.0, MAT_HILL
+        elif cull and dw >= 0.0 and ow + t0 * dw > seg[i, T_HMAX] + CULL_MARGIN_M:
+            # light step: the ray piece [t0, best] rises (dw ≥ 0) from above the segment's highest surface, so every
+            # test below would reject (ground: needs dw < 0; a block or box: w_min, the piece's lowest w minus
+            # CULL_MARGIN_M, is above its top — the cull test's own rejection, reached without computing it)
+            pass
         else:
             if dw < -1e-12:
                 t = -ow / dw
@@ -293,6 +315,8 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use
                         else:
                             code, nu, nv, nw = ROOF, 0.0, 0.0, 1.0
                             mat = MAT_ROOF
+            if any_hit and code >= 0:  # a block or the ground is in the way: whether a prop is nearer is moot
+                return (best, code, i, i, inside, 0.0, 0.0, 0.0, nu, nv, nw, mat)
             u_min, u_max = min(ua, ub) - CULL_MARGIN_M, max(ua, ub) + CULL_MARGIN_M
             for b in range(int(seg[i, rt.N_BOXES])):
                 col = rt.BOX0 + rt.BOX_STRIDE * b
@@ -302,6 +326,8 @@ def trace(seg, i0, inside0, ox, oy, oz, dx, dy, dz, tmax, ztop, cull, use_o, use
                 t, bu, bv, bw = _box_hit(seg, i, col, ou, ov, ow, du, dv, dw, t0, best)
                 if t < best:
                     best, code, nu, nv, nw, mat = t, PROP, bu, bv, bw, int(seg[i, col + 6])
+                    if any_hit:
+                        return (best, code, i, i, inside, 0.0, 0.0, 0.0, nu, nv, nw, mat)
         if code >= 0:
             return (best, code, i, i, inside, ou + best * du, ov + best * dv, ow + best * dw, nu, nv, nw, mat)
         if t_exit >= tmax:
@@ -414,11 +440,16 @@ def sample_texture(texels, offs, sizes, scales, mat, a_m, b_m, footprint_m, texe
     out[0] = 0.0
     out[1] = 0.0
     out[2] = 0.0
-    s0 = 1 << l0
-    _bilinear(texels, offs[mat, l0], sizes[mat, l0], a / (texel_m * s0), b_m / (texel_m * s0), out, 1.0 - fr)
+    # texel coordinates at level l: a / (texel_m·2^l) = (a / texel_m)·2^−l bit for bit (scaling by a power of two
+    # is exact and commutes with rounding; levels ≤ 11, far from underflow), so one division per axis serves both
+    # levels instead of two
+    qa = a / texel_m
+    qb = b_m / texel_m
+    k0 = 1.0 / (1 << l0)
+    _bilinear(texels, offs[mat, l0], sizes[mat, l0], qa * k0, qb * k0, out, 1.0 - fr)
     if fr > 0.0:
-        s1 = 1 << l1
-        _bilinear(texels, offs[mat, l1], sizes[mat, l1], a / (texel_m * s1), b_m / (texel_m * s1), out, fr)
+        k1 = 1.0 / (1 << l1)
+        _bilinear(texels, offs[mat, l1], sizes[mat, l1], qa * k1, qb * k1, out, fr)
     k = scales[mat] / 255.0
     out[0] *= k
     out[1] *= k

@@ -127,7 +127,7 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
     daylight.NO_LIGHT_MAP (no rows): the exact integral per pixel."""
     t, code, j, air, air_in, u, v, w, nu, nv, nw, mat = rc.trace(
         seg, start_seg, start_inside, ox, oy, oz, dx, dy, dz, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
-        True, False)
+        True, False, False)
     if code == rc.SKY:
         _sky(lp, hdri, dx, dy, dz, out)
         return rc.INF, code, MAT_SKY
@@ -186,8 +186,9 @@ def shade_pixel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_co
     cos_sun = nx * sun_x + ny * sun_y + nz * sun_z
     if e_sun > 0.0 and cos_sun > 0.0 and sun_z > 0.0:
         px, py, pz = ox + t * dx + 0.02 * nx, oy + t * dy + 0.02 * ny, oz + t * dz + 0.02 * nz
+        # only whether the sun is blocked matters: the first hit found ends the walk (any_hit)
         ts = rc.trace(seg, air, air_in, px, py, pz, sun_x, sun_y, sun_z, lp[rc.LP_TMAX], lp[rc.LP_ZTOP], cull,
-                      False, True)[1]
+                      False, True, True)[1]
         if ts == rc.SKY:
             e_day += e_sun * cos_sun
     if not interior:
@@ -253,13 +254,17 @@ def render_kernel(seg, lp, texels, offs, sizes, scales, albedo, lamp_mult, lamp_
     stride = rc.spread_stride(h)
     # per-segment terms shared by every primary ray (camera origin) and every shadow ray (sun direction)
     segf = rc.with_frame_terms(seg, cam[0], cam[1], cam[2], lp[0], lp[1], lp[2])
+    # the camera-frame ray slopes per column and per row: the same divisions as per pixel, done once (bit-identical)
+    cxrs = np.empty(w)
+    for xx in range(w):
+        cxrs[xx] = (xx + 0.5 - cx) / fx
     for k in prange(h):
         yy = (k * stride) % h  # spread each thread's share of rows over the image (see spread_stride)
         px = np.empty(3)
         tex = np.empty(3)
+        cyr = (yy + 0.5 - cy) / fy
         for xx in range(w):
-            cxr = (xx + 0.5 - cx) / fx
-            cyr = (yy + 0.5 - cy) / fy
+            cxr = cxrs[xx]
             nrm = 1.0 / math.sqrt(cxr * cxr + cyr * cyr + 1.0)
             dx = (rot[0, 0] * cxr + rot[0, 1] * cyr + rot[0, 2]) * nrm
             dy = (rot[1, 0] * cxr + rot[1, 1] * cyr + rot[1, 2]) * nrm
