@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 
+import fixture_manifest
 import pandas as pd
 import pytest
+import yaml
 from synthetic_raw import write_synthetic_sequence
 
 pytestmark = pytest.mark.slow
@@ -27,9 +30,12 @@ ALL_STAGES = ({"guard", "compose", "collect", "ingest", "features", "labels", "s
 def test_repro_noop_and_per_key_rerun(project_copy):
     p = project_copy
     # iteration 3 and the closed-loop model selection are off by default; on here so the DAG runs them
-    p.set_overrides(["scale=fixture", "iteration3.enabled=true", "select_model.enabled=true"])
+    p.set_overrides(fixture_manifest.OVERRIDES)
     first = p.dvc("repro")
     assert _ran(first.stdout) == ALL_STAGES, first.stdout
+    # Same bytes on every host: in the pinned numeric mode (the default) this run must reproduce the committed
+    # manifest, whatever CI host's CPU ran it (tests/pipeline/fixture_manifest.py names the exceptions and why).
+    _check_manifest(p.root)
     # the README's commands to compare experiments fit in 120 columns (a bare `dvc exp show` is ~410 wide)
     shown = p.dvc("exp", "show", "--md", "--drop", ".*", "--keep", "^(Experiment|overrides|val_loss)$").stdout
     rows = shown.strip().splitlines()
@@ -99,6 +105,16 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     second = p.dvc("repro")
     assert _ran(second.stdout) == {"guard"}, second.stdout
 
+    # Where the jobs run is not a result: the finished run pointed at a Ray cluster re-runs nothing but compose, which
+    # writes the new `parallel` block into configs/resolved.yaml. No stage declares it as a param (it is a runtime key,
+    # stages/table.py), so `dvc status` then has nothing to re-run, and the cluster is never contacted.
+    p.set_overrides(fixture_manifest.OVERRIDES + ["parallel.backend=ray", "parallel.address=127.0.0.1:1"])
+    moved = p.dvc("repro")
+    assert _ran(moved.stdout) == {"guard", "compose"}, moved.stdout
+    resolved = yaml.safe_load((p.root / "configs" / "resolved.yaml").read_text())
+    assert resolved["parallel"] == {"backend": "ray", "address": "127.0.0.1:1"}
+    assert _status_stages(p.dvc("status").stdout) <= {"guard"}  # guard is always changed, by design
+
     # Switching iteration 3 off re-runs exactly the iteration-3 stages and the selection; evaluate re-runs exactly when
     # the selection's final network changed (it depends on the network, not on the iteration keys; which candidate
     # wins is the selection's measured outcome, not something this test fixes).
@@ -123,7 +139,28 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     assert _ran(p.dvc("repro").stdout) == {"guard", "compose", "report"}
     runs = p.stage_runs()
     assert runs["report"] == 3 and runs["evaluate"] == 1 + final_changed and runs["select_model"] == 2
-    assert runs["compose"] == 4 and runs["train"] == 1 and runs["train_iter@2"] == 1 and runs["train_iter@3"] == 2
+    assert runs["compose"] == 5 and runs["train"] == 1 and runs["train_iter@2"] == 1 and runs["train_iter@3"] == 2
+
+
+def _check_manifest(root):
+    """The run's outputs against tests/pipeline/fixture_manifest.json (or, with EXPOCTL_WRITE_FIXTURE_MANIFEST=1,
+    the manifest rewritten from this run), and its record of the numeric mode: pinned before any import."""
+    from expoctl.numerics import NumericsConfig, environment
+
+    record = json.loads((root / "reports" / "numerics.json").read_text())
+    assert record["mode"] == "pinned" and record["applied_before_import"], record
+    assert {k: v for k, v in record["environment"].items() if v is not None} == environment(NumericsConfig("pinned"))
+    if os.environ.get(fixture_manifest.WRITE_ENV) == "1":
+        fixture_manifest.write(root)
+        return
+    diff = fixture_manifest.differences(root)
+    assert not diff, ("the fixture DAG's outputs differ from tests/pipeline/fixture_manifest.json (if the change is "
+                      f"meant to change them, regenerate: {fixture_manifest.REGENERATE}):\n" + "\n".join(diff))
+
+
+def _status_stages(status: str) -> set[str]:
+    """The stages `dvc status` lists as changed (its unindented 'name:' lines)."""
+    return {line[:-1] for line in status.splitlines() if line.endswith(":") and not line[:1].isspace()}
 
 
 def test_bad_raw_data_stops_cleanly(project_copy):
