@@ -8,9 +8,9 @@ the x86-64-v3 (AVX2 + FMA, "haswell") baseline, so an AVX-512 host runs the kern
 `numerics.mode: host` leaves every library its own choice (the fastest on this CPU, the bytes of this CPU).
 
 Measured on the hosts we have (benchmarks/cpu_dispatch.py, docs/reproducibility.md): on an AVX-512 host, oneDNN's
-ISA (`ONEDNN_MAX_CPU_ISA`), ATen's capability and torch's thread count change trained weights; numba, numpy and
-OpenCV switches changed nothing there. They are pinned anyway: they cost nothing measurable, and a host with other
-kernels (an Intel CPU with AVX-512 FP16, a newer numpy with AVX-512 sort or SVML paths) could differ where ours do not.
+ISA (`ONEDNN_MAX_CPU_ISA`), ATen's capability and torch's thread count change trained weights; on an AVX2 AMD host,
+MKL's CNR branch (`MKL_CBWR`) does; numba and OpenCV switches changed nothing. They are pinned anyway: a host with
+other kernels (an Intel CPU with AVX-512 FP16, a numpy with AVX-512 sort or SVML paths) could differ where ours do not.
 
 Why the environment: the switches are read at import (oneDNN, ATen, MKL, OpenBLAS, numpy, OpenCV) or at numba's
 first compile, so they must be set before any of those libraries is imported: the stage entry points set them first
@@ -59,7 +59,8 @@ PINNED_ENV: dict[str, str] = {
     # chooses on an AVX2 host, and caps an AVX-512 one there
     "ATEN_CPU_CAPABILITY": "avx2",
     # torch's BLAS is MKL (torch.__config__.show(): BLAS_INFO=mkl): conditional numerical reproducibility on the
-    # AVX2 code path, and no AVX-512 dispatch
+    # AVX2 code path, and no AVX-512 dispatch. Measured: on an AMD CPU MKL's default path is another one, and the
+    # fixture's trained weights differ without MKL_CBWR (docs/reproducibility.md)
     "MKL_CBWR": "AVX2",
     "MKL_ENABLE_INSTRUCTIONS": "AVX2",
     # numpy's BLAS is OpenBLAS built with DYNAMIC_ARCH: its kernel set chosen per CPU, pinned to Haswell's
