@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from expoctl.controllers.rl import with_rl
 from expoctl.errors import InputError
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
@@ -39,6 +40,10 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     root = Path(project_root or PROJECT_ROOT)
     if "final_model" in cfg.get("paths", {}):
         cfg = final_model_config(cfg)
+    # `rl` (opt-in): joins a null controller list only when train_rl made an agent; listed without one, an error
+    cfg, rl_skipped = with_rl(cfg, root)
+    if rl_skipped:
+        log.info("controller rl skipped: %s", rl_skipped)
     inputs = EvaluationInputs.from_resolved(cfg)  # every config problem at once, before any work
     check_network(inputs, root)
     t0 = time.perf_counter()

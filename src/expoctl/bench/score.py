@@ -95,6 +95,18 @@ def plan_benchmark(cfg: dict, project_root: str | os.PathLike, candidates: Seque
         model_path = None
     if "learned" not in builtins + names:
         model_path = None
+    # `rl` (opt-in, expoctl.controllers.rl): scored when its trained agent exists, as `learned` with its model
+    from expoctl.controllers.rl import with_rl
+
+    if "rl" not in names and (baselines is None or "rl" in baselines):
+        cfg, why = with_rl({**cfg, "evaluate": {**(cfg.get("evaluate") or {}), "controllers": None}}, root)
+        if why is None:
+            builtins = [n for n in controller_names(opt_in=True) if n in builtins or n == "rl"]
+        else:
+            skipped["rl"] = why
+    if "rl" in builtins + names:
+        cfg, _ = with_rl(cfg, root, ["rl"])
+    paths = cfg.setdefault("paths", {})  # with_rl returned a copy
     if model_path is not None:
         paths["model"] = str(model_path.resolve())
         cfg.setdefault("controllers", {}).setdefault("learned", {}).pop("checkpoint", None)
@@ -109,7 +121,7 @@ def plan_benchmark(cfg: dict, project_root: str | os.PathLike, candidates: Seque
     inputs = EvaluationInputs.from_resolved(cfg)
     check_controllers(inputs.evaluate.controllers, inputs, references)
     windows = plan_windows(inputs, root)
-    ordered = tuple(n for n in controller_names() if n in inputs.evaluate.controllers)
+    ordered = tuple(n for n in controller_names(opt_in=True) if n in inputs.evaluate.controllers)
     ordered += tuple(n for n in inputs.evaluate.controllers if n not in ordered)
     return BenchmarkPlan(inputs, ordered, tuple(names), references,
                          None if model_path is None else str(model_path), windows, skipped)

@@ -65,10 +65,17 @@ def needs(name: str) -> tuple[str, ...]:
     return tuple(controller(name).info.get("needs", ()))
 
 
-def controller_names(*, runs_without: tuple[str, ...] = ()) -> tuple[str, ...]:
-    """Every registered controller in table order; with `runs_without`, those that need none of those inputs (e.g.
-    `runs_without=("scene",)`: the ones that can drive a real camera or collect)."""
-    return tuple(p.name for p in CONTROLLERS.entries() if not set(p.info.get("needs", ())) & set(runs_without))
+def controller_names(*, runs_without: tuple[str, ...] = (), opt_in: bool = False) -> tuple[str, ...]:
+    """Every registered controller in table order (what `evaluate.controllers: null` drives); with `runs_without`,
+    those that need none of those inputs (e.g. `runs_without=("scene",)`: the ones that can drive a real camera or
+    collect). Controllers registered with `opt_in=True` (`rl`: its agent comes from an optional stage, off by
+    default) only with `opt_in=True`: a default run must not need a model no default stage makes."""
+    return tuple(p.name for p in CONTROLLERS.entries() if not set(p.info.get("needs", ())) & set(runs_without)
+                 and (opt_in or not p.info.get("opt_in", False)))
+
+
+def is_opt_in(name: str) -> bool:
+    return bool(controller(name).info.get("opt_in", False))
 
 
 def read_controller_config(name: str, section: Any, problems=None, key: str | None = None) -> Any:

@@ -104,7 +104,10 @@ def validate_metrics(metrics: Any, controllers=None, splits=ROUTE_SPLITS, fronte
     from expoctl.features.registry import FRONTENDS
 
     problems: list[str] = []
-    controllers = CONTROLLERS.names() if controllers is None else controllers
+    if controllers is None:  # every one a default run drives (opt-in controllers only when asked for)
+        from expoctl.controllers.registry import controller_names
+
+        controllers = controller_names()
     VARIANTS = variants(FRONTENDS.names() if frontends is None else frontends)
     if not isinstance(metrics, dict):
         return [f"top level must be an object, got {type(metrics).__name__}"]

@@ -42,10 +42,18 @@ class VoConfig:
     map: MapTrackerConfig = field(default_factory=MapTrackerConfig)  # its n_features is vo.n_features
 
 
+def _default_controllers() -> tuple[str, ...]:
+    from expoctl.controllers.registry import controller_names
+
+    return controller_names()
+
+
 @dataclass(frozen=True)
 class EvaluateConfig:
     # null in the config: every registered controller (built-ins and installed plugins), in table order
-    controllers: tuple[str, ...] = field(default_factory=lambda: CONTROLLERS.names())
+    # (but opt-in ones, `rl`: expoctl.controllers.registry.controller_names; the evaluate stage adds those whose
+    # stage is on)
+    controllers: tuple[str, ...] = field(default_factory=lambda: _default_controllers())
     splits: dict[str, SplitPlan] = field(default_factory=dict)
     warmup_frames: int = 30
     initial_gain_db: float = 0.0
@@ -70,6 +78,8 @@ class EvaluateConfig:
     def from_dict(cls, d: Any, key: str = "evaluate", problems: Problems | None = None) -> "EvaluateConfig":
         r = Section(d, key, problems, required=True)
         controllers = CONTROLLERS.read_names(r, "controllers")
+        if r.value("controllers", None) is None:
+            controllers = _default_controllers()
         splits = r.section("splits", required=True)
         if not splits.mapping:
             splits.problem(None, f"must map route split (validation, test) → plan, got {splits.mapping!r}")
