@@ -54,7 +54,7 @@ def benched(project, tmp_path_factory):
     cwd = os.getcwd()
     os.chdir(root)
     try:
-        rc = main(["bench", "--controller", "user_ctl:Hold", "--baselines", "agae,fixed", "--n-jobs", "2",
+        rc = main(["bench", "--controller", "user_ctl:Hold", "--baselines", "agae,fixed", "--n-jobs", "2", "--bound",
                    "--mlflow-uri", f"sqlite:///{store}", "--out", "out"])
     finally:
         os.chdir(cwd)
@@ -69,7 +69,8 @@ def test_user_controller_is_scored_beside_the_baselines(benched, project):
     assert doc["controllers"]["hold"]["import_path"] == "user_ctl:Hold"
     assert doc["candidates"] == ["hold"]
     rows = {(r["split"], r["controller"]): r for r in doc["leaderboard"]}
-    assert set(rows) == {(s, c) for s in ("validation", "test") for c in ("agae", "fixed", "hold")}
+    assert set(rows) == {(s, c) for s in ("validation", "test")
+                         for c in ("agae", "fixed", "hold", "offline_optimum")}
     assert rows["test", "hold"]["label"] == "Hold 1 ms"
     text = (root / "out/leaderboard.txt").read_text()
     assert "Hold 1 ms" in text and max(len(line) for line in text.splitlines()) <= 120
@@ -96,7 +97,7 @@ def test_mlflow_has_one_top_level_run_per_controller(benched):
     client = mlflow.MlflowClient(f"sqlite:///{store}")
     exp = client.get_experiment_by_name("expoctl-bench")
     runs = client.search_runs([exp.experiment_id])
-    assert sorted(r.data.tags["controller"] for r in runs) == ["agae", "fixed", "hold"]
+    assert sorted(r.data.tags["controller"] for r in runs) == ["agae", "fixed", "hold", "offline_optimum"]
     assert all("mlflow.parentRunId" not in r.data.tags for r in runs)
     hold = next(r for r in runs if r.data.tags["controller"] == "hold")
     row = next(r for r in doc["leaderboard"] if r["controller"] == "hold" and r["split"] == "test")
@@ -166,3 +167,16 @@ def test_mlflow_view_opens_on_the_leaderboard(benched):
     assert state["searchFilter"] == f"tags.bench_id = '{bench_id}'"
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
     assert "test.orb.dynamic_min" in json.dumps(state)
+
+
+def test_offline_optimum_heads_each_split(benched):
+    """--bound: the offline optimum over the oracle's grid (6 candidates at fixture scale) is each split's first row,
+    labelled with its grid, and its numbers are the bound's aggregate."""
+    _, doc, _ = benched
+    bound = doc["offline_bound"]
+    assert bound["grid"]["label"] == "6-candidate ladder, 3 EV" or bound["grid"]["label"].startswith("6-candidate")
+    for split in ("validation", "test"):
+        rows = [r for r in doc["leaderboard"] if r["split"] == split]
+        assert rows[0]["controller"] == "offline_optimum" and rows[0]["reference"]
+        assert bound["grid"]["label"] in rows[0]["label"]
+        assert rows[0]["nfm"]["orb"]["dynamic_min"] == bound["metrics"][split]["dynamic"]["orb"]["min_nfm"]

@@ -42,6 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mlflow-uri", help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
     p.add_argument("--experiment", default=EXPERIMENT, help=f"MLflow experiment (default: {EXPERIMENT})")
     p.add_argument("--no-mlflow", action="store_true", help="do not log to MLflow")
+    p.add_argument("--bound", action="store_true",
+                   help="also the offline optimum over the oracle's candidate grid (K² matches per frame: slow)")
     p.add_argument("--width", type=int, default=120, help="leaderboard width in columns (default: 120)")
 
 
@@ -70,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"expoctl bench: not scoring {name!r}: {why}", file=sys.stderr)
     print(f"expoctl bench: {len(plan.controllers)} controllers × {len(plan.windows)} windows ({source})",
           file=sys.stderr)
-    outcome = run_benchmark(plan, args.project, progress=sys.stderr.isatty())
+    outcome = run_benchmark(plan, args.project, progress=sys.stderr.isatty(), bound=args.bound)
     doc = benchmark_json(outcome, source)
     text = write_outputs(doc, args.out, args.width)
     print(text)

@@ -19,6 +19,8 @@ from typing import Any, Sequence
 
 #: controllers that are references, not causal controllers: they see the scene (`needs=("scene",)`)
 REFERENCE_MARK = "*"
+#: the leaderboard's name of the offline optimum's rows (not a controller: a bound over a stated grid)
+OFFLINE_OPTIMUM = "offline_optimum"
 
 
 def leaderboard_rows(metrics: dict, runs, frontends: Sequence[str], labels: dict[str, str] | None = None,
@@ -51,6 +53,34 @@ def leaderboard_rows(metrics: dict, runs, frontends: Sequence[str], labels: dict
     return rows
 
 
+def bound_rows(bound: dict, frontends: Sequence[str]) -> list[dict[str, Any]]:
+    """One reference row per split for the offline optimum (`expoctl.sim.offline_bound.evaluate_bounds`): per front
+    end the mean over sections of each section's best attainable median and minimum on the grid; no VO, no time."""
+    label = f"Offline optimum ({bound['grid']['label']})"
+    rows = []
+    for split, kinds in bound["metrics"].items():
+        cell = lambda kind, fe, stat: kinds.get(kind, {}).get(fe, {}).get(stat)  # noqa: E731
+        rows.append({"split": split, "controller": OFFLINE_OPTIMUM, "label": label, "reference": True,
+                     "nfm": {fe: {"static_median": cell("static", fe, "median_nfm"),
+                                  "dynamic_median": cell("dynamic", fe, "median_nfm"),
+                                  "dynamic_min": cell("dynamic", fe, "min_nfm")} for fe in frontends},
+                     "vo_tracked": None, "vo_map_tracked": None, "controller_ms": None})
+    return rows
+
+
+def with_bound(rows: Sequence[dict], bound: dict | None, frontends: Sequence[str]) -> list[dict[str, Any]]:
+    """`rows` with the offline optimum's row heading each split (it bounds every grid-restricted row below it)."""
+    if bound is None:
+        return list(rows)
+    extra = {r["split"]: r for r in bound_rows(bound, frontends)}
+    out: list[dict] = []
+    for split in dict.fromkeys(r["split"] for r in rows):
+        if split in extra:
+            out.append(extra[split])
+        out += [r for r in rows if r["split"] == split]
+    return out
+
+
 def _value(v) -> float:
     return -math.inf if v is None else float(v)
 
@@ -74,13 +104,16 @@ def format_leaderboard(rows: Sequence[dict], frontends: Sequence[str], frontend_
         for r in (r for r in rows if r["split"] == split):
             cells = "".join(f"{_num(r['nfm'][fe]['static_median'])}{_num(r['nfm'][fe]['dynamic_median'])}"
                             f"{_num(r['nfm'][fe]['dynamic_min'])}  " for fe in shown)
-            vo = "{}/{}".format(*r["vo_tracked"])
+            vo = "{}/{}".format(*r["vo_tracked"]) if r["vo_tracked"] else "—"
             vo_map = "{}/{}".format(*r["vo_map_tracked"]) if r["vo_map_tracked"] else "—"
             ms = "—" if r["controller_ms"] is None else f"{r['controller_ms']:.2f}"
             lines.append(f"{_name(r):<{name_w}}  {cells}{vo:>8}{vo_map:>8}{ms:>8}".rstrip())
         lines.append("")
     lines.append(f"NFM: inlier matches between consecutive frames, mean over sections (median / minimum within each); "
                  f"{REFERENCE_MARK} a reference that sees the scene, not a causal controller.")
+    if any(r["controller"] == OFFLINE_OPTIMUM for r in rows):
+        lines.append("The offline optimum bounds every controller restricted to its grid (commands snapped to the "
+                     "nearest candidate); settings off the grid can score more.")
     return "\n".join(_wrap(line, width) for line in lines)
 
 

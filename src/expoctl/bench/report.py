@@ -7,6 +7,8 @@ leaderboard.json:
   skipped:     {name: why it was not scored}
   leaderboard: the rows (`expoctl.bench.leaderboard.leaderboard_rows`)
   metrics:     evaluate's metrics.json object for these controllers (docs/evaluation.md)
+  offline_bound: with --bound, the offline optimum per window, section and front end, its grid and paths
+               (`expoctl.sim.offline_bound.evaluate_bounds`), else null
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from expoctl.bench.leaderboard import format_leaderboard, leaderboard_rows
+from expoctl.bench.leaderboard import format_leaderboard, leaderboard_rows, with_bound
 
 
 def benchmark_json(outcome, source: str) -> dict[str, Any]:
@@ -29,6 +31,7 @@ def benchmark_json(outcome, source: str) -> dict[str, Any]:
     references = reference_names(plan.controllers)
     rows = leaderboard_rows(result.metrics, result.runs, frontends, {n: e.label for n, e in entries.items()},
                             references)
+    rows = with_bound(rows, outcome.bound, frontends)
     render = inputs.render
     return {
         "benchmark": {
@@ -46,6 +49,7 @@ def benchmark_json(outcome, source: str) -> dict[str, Any]:
         "skipped": dict(plan.skipped),
         "leaderboard": rows,
         "metrics": result.metrics,
+        "offline_bound": outcome.bound,
     }
 
 

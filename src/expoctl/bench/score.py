@@ -140,11 +140,14 @@ class BenchmarkOutcome:
     result: Any                      # EvaluationResult (metrics.json object, per-frame and per-run tables)
     sumlog_source: str
     seconds: float
+    bound: dict | None = None        # `expoctl.sim.offline_bound.evaluate_bounds`'s object, when asked for
 
 
 def run_benchmark(plan: BenchmarkPlan, project_root: str | os.PathLike = ".", progress: bool = False,
-                  parallel=None) -> BenchmarkOutcome:
-    """Drive every controller of `plan` over its windows (evaluate's `evaluate_windows`) and aggregate."""
+                  parallel=None, bound: bool = False) -> BenchmarkOutcome:
+    """Drive every controller of `plan` over its windows (evaluate's `evaluate_windows`) and aggregate; with `bound`,
+    also the offline optimum of every window over the grid of `evaluate.offline_bound` (default: the oracle's
+    ladder; docs/evaluation.md, The offline bound)."""
     from expoctl.evaluation.runner import evaluate_windows, tune_sumlog_params
     from expoctl.features.sumlog import SumLogParams
 
@@ -159,4 +162,9 @@ def run_benchmark(plan: BenchmarkPlan, project_root: str | os.PathLike = ".", pr
     t0 = time.perf_counter()
     result = evaluate_windows(inputs, plan.windows, sumlog, plan.controllers, plan.model_path, progress, parallel,
                               plan.references)
-    return BenchmarkOutcome(plan, result, source, time.perf_counter() - t0)
+    bounds = None
+    if bound:
+        from expoctl.sim.offline_bound import evaluate_bounds
+
+        bounds = evaluate_bounds(inputs, plan.windows, sumlog, parallel)
+    return BenchmarkOutcome(plan, result, source, time.perf_counter() - t0, bounds)

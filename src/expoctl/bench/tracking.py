@@ -68,8 +68,9 @@ def run_metrics(row: dict[str, Any]) -> dict[str, float]:
         for stat, v in cells.items():
             if v is not None:
                 out[f"{split}.{fe}.{stat}"] = float(v)
-    ok, n = row["vo_tracked"]
-    out[f"{split}.vo_tracked_rate"] = ok / n if n else 0.0
+    if row["vo_tracked"]:
+        ok, n = row["vo_tracked"]
+        out[f"{split}.vo_tracked_rate"] = ok / n if n else 0.0
     if row["vo_map_tracked"]:
         ok, n = row["vo_map_tracked"]
         out[f"{split}.vo_map_tracked_rate"] = ok / n if n else 0.0
@@ -89,7 +90,13 @@ def log_benchmark(tracking: Tracking, doc: dict[str, Any], out_dir: str | os.Pat
               "bench.sumlog": b["sumlog"]}
     ids = []
     artifact = Path(out_dir) / "leaderboard.json"
-    for name, c in doc["controllers"].items():
+    runs = dict(doc["controllers"])
+    if doc.get("offline_bound"):
+        from expoctl.bench.leaderboard import OFFLINE_OPTIMUM
+
+        label = next(r["label"] for r in doc["leaderboard"] if r["controller"] == OFFLINE_OPTIMUM)
+        runs[OFFLINE_OPTIMUM] = {"label": label, "reference": True, "package": "expoctl", "import_path": None}
+    for name, c in runs.items():
         rows = [r for r in doc["leaderboard"] if r["controller"] == name]
         metrics: dict[str, float] = {}
         for r in rows:
