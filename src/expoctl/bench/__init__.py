@@ -4,4 +4,4 @@ from expoctl.bench.registration import ENV_ID, register_envs
 
 register_envs()  # gymnasium.make("expoctl.bench:expoctl/Exposure-v0") imports this package for the id
 
-__all__ = ["ENV_ID"]
+__all__ = ["ENV_ID", "register_envs"]
