@@ -27,6 +27,7 @@ from expoctl.selection.model_selection import SelectConfig
 from expoctl.sim.collect import CollectConfig, CollectInputs, plan_sequences, reference_controller_config
 from expoctl.world.cities import deep_merge, resolve_city_name
 from stages.collect import REFERENCE_GATES
+from expoctl.rl.config import read_rl_config
 from stages.keys import LAST_ITERATION
 from stages.project import PROJECT_ROOT
 from stages.train import configs as train_configs
@@ -34,8 +35,8 @@ from stages.train import configs as train_configs
 #: The resolved config's top-level keys: conf/config.yaml's groups (its defaults list) and own keys, and what the
 #: scale presets (conf/scale/*.yaml, package _global_) add. tests/stages/test_config_check.py checks it against conf/.
 TOP_LEVEL_KEYS = ("sensor", "world", "rig", "controllers", "collect", "ingest", "features", "labels", "samples",
-                  "model", "train", "select_model", "evaluate", "report", "parallel", "numerics", "seed", "paths",
-                  "scale_name") + tuple(
+                  "model", "train", "select_model", "evaluate", "report", "parallel", "numerics", "rl", "seed",
+                  "paths", "scale_name") + tuple(
     f"iteration{n}" for n in range(2, LAST_ITERATION + 1))
 #: `paths` (conf/config.yaml); an `iteration<N>.paths` block overrides some of them, all but the final model
 PATH_KEYS = ("raw_dir", "frames", "images_dir", "features", "matches", "labels", "samples", "model", "final_model",
@@ -57,6 +58,7 @@ def check_resolved(cfg: dict[str, Any], project_root: Path = PROJECT_ROOT) -> No
     ParallelConfig.from_dict(top.value("parallel", None), "parallel", problems)  # where jobs run (as collect reads it)
     NumericsConfig.from_dict(top.value("numerics", None), "numerics", problems)  # as every stage's boot reads it
     select = SelectConfig.from_dict(top.value("select_model", None), "select_model", problems)
+    read_rl_config(top.value("rl", None), problems)  # the train_rl stage's group, checked even when it is off
     # evaluate, features (every front end's typed config), world, rig, sensor, every controllers.<name> section
     evaluation = EvaluationInputs.from_resolved(cfg, problems)
     _check_plugins(problems)

@@ -167,11 +167,17 @@ STAGES: tuple[Stage, ...] = (
               "probe drops candidates with a saturated closed-loop fixed point; with enabled: true the rest drive the "
               "training city in closed loop with evaluate's protocol. The choice is copied to the final model, which "
               "evaluate drives (conf/select_model/default.yaml).")),
+    Stage("train_rl", keys=(*ROLLOUT_KEYS, *NUMERIC_KEYS, "rl", "evaluate", "features", "plugins.frontends"),
+          outs=(Out("models/rl"),), comment=(
+              "Optional, off by default (rl.enabled): a stable-baselines3 agent trained in expoctl/Exposure-v0 on the "
+              "training city only, resumable from models/rl (raise rl.total_steps to continue); off, it writes only "
+              "models/rl/DISABLED.json and evaluate skips the `rl` controller (docs/benchmark.md).")),
     Stage("evaluate",
           keys=(*ROLLOUT_KEYS, *NUMERIC_KEYS, "controllers", "features", "evaluate", "plugins", "paths.final_model",
                 "paths.frames", "paths.reports_dir"),
           runtime_keys=FAN_OUT,
-          deps=("{final_model}", "{final_model_onnx}", "{frames}", "{raw_dir}"),
+          deps=("{final_model}", "{final_model_onnx}", "{frames}", "{raw_dir}",
+                Dep("models/rl", "the rl agent (train_rl), or its marker when that stage is off")),
           outs=(Out("{reports_dir}/eval"), Out("{reports_dir}/metrics.json", cache=False))),
     Stage("report", keys=(*NUMERIC_KEYS, "report", "paths.reports_dir", "paths.final_model"),
           deps=("{reports_dir}/metrics.json", "{reports_dir}/eval", "{reports_dir}/select_model.json",

@@ -92,3 +92,23 @@ def test_bench_scores_rl_when_trained_and_skips_it_when_not(agent, tmp_path):
     assert with_rl({**cfg, "evaluate": {**cfg["evaluate"], "controllers": None}}, tmp_path)[1]
     with pytest.raises(InputError, match="controller 'rl' is listed"):
         with_rl({**cfg, "evaluate": {**cfg["evaluate"], "controllers": ["fixed", "rl"]}}, tmp_path)
+
+
+def test_train_rl_stage_off_writes_only_its_marker(tmp_path):
+    from stages.compose import compose_config
+    from stages.train_rl import run
+
+    class Tracker:
+        def log_metrics(self, *a, **k):
+            raise AssertionError("an off stage logs no metrics")
+
+    cfg = compose_config(["scale=fixture"])
+    assert cfg["rl"]["enabled"] is False
+    (tmp_path / "models" / "rl").mkdir(parents=True)
+    (tmp_path / "models" / "rl" / "agent.zip").write_bytes(b"stale")
+    run(cfg, Tracker(), project_root=tmp_path)
+    assert sorted(p.name for p in (tmp_path / "models" / "rl").iterdir()) == ["DISABLED.json"]
+    with pytest.raises(InputError, match="train_rl stage is off"):
+        from expoctl.controllers.rl import RLController
+
+        RLController.from_folder(tmp_path / "models" / "rl")

@@ -52,7 +52,9 @@ def test_dvc_yaml_has_no_repeated_blocks_and_fits_the_page():
     # each stage's deps, params and outs are written once: iteration 1 out, the later ones as one foreach
     doc = yaml.safe_load(text)
     assert set(doc["stages"]) == {s.name for s in table.STAGES} | {f"{s.name}_iter" for s in table.STAGES if s.iterated}
-    assert len(text.splitlines()) < 450  # was 807 lines, hand-kept
+    # was 807 lines, hand-kept; 394 before train_rl and the rl controller, whose env modules (expoctl.bench) every
+    # stage that builds controllers now lists
+    assert len(text.splitlines()) < 500
 
 
 # --- source deps follow the imports ---------------------------------------------------------------------------------
