@@ -131,7 +131,7 @@ def test_compose_check_reports_a_broken_plugin_and_an_uninstalled_one(site):
                                                      "importing demo_bad.controller failed: RuntimeError: "
                                                      "no licence key")
     assert problems["evaluate.controllers"].startswith("unknown controller 'hold_ep' (known: agae, shin, shim, "
-                                                       "mean_intensity, fixed, learned, oracle)")
+                                                       "mean_intensity, fixed, learned, rl, oracle)")
     assert "labels.frontend" in problems and "'orb+harris_ep'" in problems["labels.frontend"]
 
 

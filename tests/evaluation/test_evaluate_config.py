@@ -64,12 +64,13 @@ def test_vo_map_block_is_read():
 
 
 def test_frontends_and_controllers_are_choices_of_the_registries():
-    """null (or absent) is every registered one, in table order; a subset is kept as given."""
-    from expoctl.controllers.registry import CONTROLLERS
+    """null (or absent) is every registered one but the opt-in `rl`, in table order; a subset is kept as given."""
+    from expoctl.controllers.registry import CONTROLLERS, controller_names
     from expoctl.features.registry import FRONTENDS
 
     every = EvaluateConfig.from_dict({"splits": {"validation": {}}, "controllers": None, "frontends": None})
-    assert every.controllers == CONTROLLERS.names() and every.frontends == FRONTENDS.names() == ("orb", "viso")
+    assert every.controllers == controller_names() == tuple(n for n in CONTROLLERS.names() if n != "rl")
+    assert every.frontends == FRONTENDS.names() == ("orb", "viso")
     assert every.controllers[:2] == ("agae", "shin") and every.controllers[-2:] == ("learned", "oracle")
     one = EvaluateConfig.from_dict({"splits": {"validation": {}}, "controllers": ["agae"], "frontends": ["viso"]})
     assert one.controllers == ("agae",) and one.frontends == ("viso",)
