@@ -27,7 +27,7 @@ from expoctl.selection.model_selection import SelectConfig
 from expoctl.sim.collect import CollectConfig, CollectInputs, plan_sequences, reference_controller_config
 from expoctl.world.cities import deep_merge, resolve_city_name
 from stages.collect import REFERENCE_GATES
-from expoctl.rl.config import read_rl_config
+from expoctl.bench.rl.config import read_rl_config
 from stages.keys import LAST_ITERATION
 from stages.project import PROJECT_ROOT
 from stages.train import configs as train_configs

@@ -65,7 +65,7 @@ RUNTIME_DATA: dict[str, tuple[str, ...]] = {
 #: module (subpackages included) gets imported. The plugin registries (src/expoctl/plugins.py `Registry`) import
 #: every module of their built-in packages on first use.
 DYNAMIC_IMPORTS: dict[str, tuple[str, ...]] = {
-    "src/expoctl/controllers/registry.py": ("expoctl.controllers", "expoctl.sim.oracle"),  # its builtin_packages
+    "src/expoctl/controllers/registry.py": ("expoctl.controllers", "expoctl.sim.oracle", "expoctl.bench.rl.controller"),  # its builtin_packages
     "src/expoctl/features/registry.py": ("expoctl.features",),
 }
 #: Modules that import by name only what the DYNAMIC_IMPORTS modules above ask of them.

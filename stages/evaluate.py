@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from expoctl.controllers.rl import with_rl
+from expoctl.bench.rl.controller import with_rl
 from expoctl.errors import InputError
 from expoctl.evaluation.inputs import EvaluationInputs
 from expoctl.evaluation.runner import evaluate, metrics_summary, write_outputs
@@ -50,6 +50,8 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     result = evaluate(inputs, root, progress=sys.stderr.isatty(), parallel=ParallelConfig.from_resolved(cfg))
     seconds = time.perf_counter() - t0
     out = write_outputs(result, root / cfg["paths"]["reports_dir"])
+    if inputs.evaluate.offline_bound.enabled:  # opt-in: off, evaluate's outputs are what they were without it
+        write_offline_bound(inputs, result, out["eval_dir"], tracker, ParallelConfig.from_resolved(cfg))
     runs = result.runs
     tracker.log_params({"sumlog": {k: {"alpha": list(v.alpha), "beta": v.beta, "rescale": v.rescale}
                                    for k, v in result.sumlog.items()}})
@@ -65,6 +67,24 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
             log.info("%-10s %-15s dynamic %s median %s min %s; VO %d/%d", split, ctrl, fe, _fmt(d["median_nfm"]),
                      _fmt(d["min_nfm"]), t[0], t[1])
     log.info("%d runs, %d frames in %.0f s → %s", len(runs), len(result.frames), seconds, out["metrics"])
+
+
+def write_offline_bound(inputs: EvaluationInputs, result, eval_dir: Path, tracker, parallel) -> Path:
+    """reports/eval/offline_bound.json: the offline optimum of every evaluated window over the grid
+    (expoctl.sim.offline_bound, `evaluate.offline_bound`); its aggregate numbers go to MLflow as offline_bound.*."""
+    from expoctl.io import write_json
+    from expoctl.sim.offline_bound import evaluate_bounds
+
+    t0 = time.perf_counter()
+    bound = evaluate_bounds(inputs, result.windows, result.sumlog, parallel)
+    path = eval_dir / "offline_bound.json"
+    write_json(bound, path)
+    flat = {f"offline_bound.{split}.{kind}.{v}.{stat}": val for split, kinds in bound["metrics"].items()
+            for kind, vs in kinds.items() for v, stats in vs.items() for stat, val in stats.items()}
+    tracker.log_metrics({**flat, "offline_bound.seconds": time.perf_counter() - t0})
+    log.info("offline bound (%s) over %d windows in %.0f s -> %s", bound["grid"]["label"], len(bound["windows"]),
+             time.perf_counter() - t0, path)
+    return path
 
 
 def check_network(inputs: EvaluationInputs, root: Path) -> None:

@@ -1,4 +1,4 @@
-"""train_rl stage (optional, off by default): the reinforcement-learning baseline → models/rl (expoctl.rl.train).
+"""train_rl stage (optional, off by default): the reinforcement-learning baseline → models/rl (expoctl.bench.rl.train).
 
 `rl.enabled: false`: writes only models/rl/DISABLED.json (DVC needs its output; evaluate then skips `rl`); its
 MLflow run records only the params. On: trains SAC/PPO in expoctl/Exposure-v0 on the training city of the resolved config, resuming from
@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from expoctl.rl.config import read_rl_config
+from expoctl.bench.rl.config import read_rl_config
 from stages.common import PROJECT_ROOT, stage_main
 
 log = logging.getLogger(__name__)
@@ -20,7 +20,7 @@ AGENT_DIR = "models/rl"
 
 
 def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
-    from expoctl.rl.train import train, write_disabled
+    from expoctl.bench.rl.train import train, write_disabled
 
     root = Path(project_root or PROJECT_ROOT)
     config = read_rl_config(cfg.get("rl"))

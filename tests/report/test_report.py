@@ -29,13 +29,26 @@ def test_nfm_table_orders_controllers_bolds_best_causal_and_italicises_the_oracl
     md = nfm_table(_metrics(), "validation").splitlines()
     assert md[0].startswith("| Lighting | Method | Median NFM ORB")
     body = md[2:]
-    assert [r.split("|")[2].strip() for r in body[:3]] == ["AG+AE", "Ours", "*Oracle, upper bound*"]
+    assert [r.split("|")[2].strip() for r in body[:3]] == ["AG+AE", "Ours", "*Greedy oracle, one step*"]
     assert body[0].split("|")[3].strip() == "400"
     assert body[1].split("|")[3].strip() == "**420**" and body[1].split("|")[5].strip() == "**90**"
     assert body[2].split("|")[3].strip() == "*500*"  # the oracle is never bolded, even when highest
     assert "**Dynamic**" in body[3]
     sl = nfm_table(_metrics(), "validation", sumlog=True)
     assert "AG+AE (SL)" in sl
+
+
+def test_nfm_table_has_the_offline_optimum_row_with_its_grid():
+    bound = {"grid": {"label": "14-candidate ladder, 1 EV"}, "render_size": [640, 480],
+             "metrics": {"validation": {"dynamic": {"orb": {"median_nfm": 610.0, "min_nfm": 333.4, "mean_nfm": 600.0},
+                                                    "viso": {"median_nfm": 700.0, "min_nfm": 400.0,
+                                                             "mean_nfm": 690.0}}}}}
+    md = nfm_table(_metrics(), "validation", bound=bound).splitlines()
+    # static has no bounded section: no row; dynamic: the bound's row after the controllers, in italics
+    assert len(md) == 2 + 3 + 4
+    assert md[-1] == ("| | *offline optimum (14-candidate ladder, 1 EV, 640×480)* | *610* | *700* | *333* | *400* |")
+    sl = nfm_table(_metrics(), "validation", sumlog=True, bound=bound).splitlines()
+    assert sl[-1] == "| | *offline optimum (14-candidate ladder, 1 EV, 640×480)* (SL) | — | — | — | — |"
 
 
 def test_vo_margin_is_the_worst_pair_per_run_and_counts_runs_at_stricter_thresholds():

@@ -196,3 +196,55 @@ def test_the_bound_is_not_trivial(rig):
     ks = range(dyn["path_first_frame"] + 1, dyn["last_frame"] + 1)
     best_fixed = max(min(mats["orb"][k, c, c] for k in ks) for c in range(len(GRID)))
     assert dyn["bounds"]["orb"]["min"]["value"] > best_fixed
+
+
+# ---------------------------------------------------------------------------------------- the evaluate stage's opt-in
+
+
+def test_evaluate_stage_writes_the_bound_and_the_report_row(tmp_path, monkeypatch):
+    import json
+
+    from eval_fixtures import make_fixture_project, use_real_or_test_sensor
+    from fake_tracker import FakeTracker
+
+    from expoctl.report.results import build_report
+    from stages import evaluate as stage
+
+    use_real_or_test_sensor(monkeypatch)
+    cfg = make_fixture_project(tmp_path, controllers=["fixed"])  # fixed: 0 dB, 2000 µs, a rung of the grid below
+    cfg["evaluate"]["offline_bound"] = {"enabled": True, "exposures_us": [8000.0, 2000.0, 500.0], "gains_db": []}
+    tracker = FakeTracker()
+    stage.run(cfg, tracker, project_root=tmp_path)
+    bound = json.loads((tmp_path / "reports/eval/offline_bound.json").read_text())
+    metrics = json.loads((tmp_path / "reports/metrics.json").read_text())
+    assert bound["grid"]["label"] == "3-candidate ladder, 2 EV" and bound["render_size"] == [96, 72]
+    assert bound["grid"]["source"] == "evaluate.offline_bound"
+    assert [w["sequence"] for w in bound["windows"]] == ["validation-validation-t000-w01", "test-test-t000-w01"]
+    n = 0
+    for split in ("validation", "test"):
+        for kind, per in bound["metrics"][split].items():
+            if kind not in metrics[split]["fixed"]:
+                continue  # interior sections: in sections.parquet, not in metrics.json
+            for v in ("orb", "viso"):
+                fixed = metrics[split]["fixed"][kind][v]
+                assert fixed["min_nfm"] <= per[v]["min_nfm"] and fixed["median_nfm"] <= per[v]["median_nfm"]
+                n += 1
+    assert n >= 4
+    assert tracker.metrics["offline_bound.validation.dynamic.orb.min_nfm"] == \
+        bound["metrics"]["validation"]["dynamic"]["orb"]["min_nfm"]
+    build_report(tmp_path / "reports")
+    assert "*offline optimum (3-candidate ladder, 2 EV, 96×72)*" in (tmp_path / "reports/results.md").read_text()
+
+
+def test_evaluate_outputs_unchanged_when_the_bound_is_off(tmp_path, monkeypatch):
+    from eval_fixtures import make_fixture_project, use_real_or_test_sensor
+    from fake_tracker import FakeTracker
+
+    from stages import evaluate as stage
+
+    use_real_or_test_sensor(monkeypatch)
+    cfg = make_fixture_project(tmp_path, controllers=["fixed"])
+    stage.run(cfg, FakeTracker(), project_root=tmp_path)
+    assert not (tmp_path / "reports/eval/offline_bound.json").exists()
+    assert sorted(p.name for p in (tmp_path / "reports/eval").iterdir()) == [
+        "frames.parquet", "runs.parquet", "sections.parquet", "sumlog.json", "thumbs", "windows.json"]

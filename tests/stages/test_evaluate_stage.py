@@ -83,7 +83,7 @@ def test_report_stage_writes_tables_and_figures(evaluated):
     tracker = FakeTracker()
     report.run(cfg, tracker, project_root=root)
     md = (root / "reports/results.md").read_text()
-    for heading in ("Table I", "Table II", "Table III", "Oracle", "AG+AE", "Ours"):
+    for heading in ("Table I", "Table II", "Table III", "Greedy oracle", "AG+AE", "Ours"):
         assert heading in md
     for fig in ("fig7_tunnel_timeline", "fig6_image_strips", "nfm_bars_test_dynamic"):
         assert (root / f"reports/figures/{fig}.png").stat().st_size > 5000

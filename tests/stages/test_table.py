@@ -193,6 +193,8 @@ def test_stage_keys_name_only_config_groups_the_check_knows():
                                               for n in range(2, table.LAST_ITERATION + 1)]
     tops = {key.split(".")[0] for name in names for key in stage_keys(name)}
     assert tops <= set(TOP_LEVEL_KEYS) | derived, tops - set(TOP_LEVEL_KEYS) - derived
+    # keys that only choose where work runs (`parallel`) are read but are no DVC param (Stage.runtime_keys)
+    tops |= {key.split(".")[0] for s in table.STAGES for key in s.runtime_keys}
     assert set(TOP_LEVEL_KEYS) - tops == {"scale_name"}
     assert not derived & set(TOP_LEVEL_KEYS)  # a derived key is not a setting
 

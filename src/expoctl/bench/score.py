@@ -95,8 +95,8 @@ def plan_benchmark(cfg: dict, project_root: str | os.PathLike, candidates: Seque
         model_path = None
     if "learned" not in builtins + names:
         model_path = None
-    # `rl` (opt-in, expoctl.controllers.rl): scored when its trained agent exists, as `learned` with its model
-    from expoctl.controllers.rl import with_rl
+    # `rl` (opt-in, expoctl.bench.rl.controller): scored when its trained agent exists, as `learned` with its model
+    from expoctl.bench.rl.controller import with_rl
 
     if "rl" not in names and (baselines is None or "rl" in baselines):
         cfg, why = with_rl({**cfg, "evaluate": {**(cfg.get("evaluate") or {}), "controllers": None}}, root)

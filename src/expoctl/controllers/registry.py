@@ -29,10 +29,10 @@ from expoctl.plugins import Plugin, Registry
 #: what a controller can need at run time besides its config (`needs=` at registration)
 NEEDS = ("checkpoint", "scene")
 
-#: built-ins: every module of expoctl.controllers, and the oracle, which renders the scene and so lives with the
-#: simulator
-CONTROLLERS = Registry("controller", "expoctl.controllers", "controllers", ("expoctl.controllers", "expoctl.sim.oracle"),
-                       ("reset", "update"))
+#: built-ins: every module of expoctl.controllers, the oracle (it renders the scene, so it lives with the simulator) and
+#: the reinforcement-learning baseline (it sees what the benchmark environment delivers, so it lives with the benchmark)
+CONTROLLERS = Registry("controller", "expoctl.controllers", "controllers",
+                       ("expoctl.controllers", "expoctl.sim.oracle", "expoctl.bench.rl.controller"), ("reset", "update"))
 
 
 @dataclass(frozen=True)

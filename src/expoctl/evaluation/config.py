@@ -15,6 +15,7 @@ from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX,
 from expoctl.config_reader import Problems, Section, is_integer
 from expoctl.controllers.registry import CONTROLLERS
 from expoctl.features.registry import FRONTENDS
+from expoctl.sim.offline_bound import OfflineBoundParams
 from expoctl.vo.local_map import MapTrackerConfig
 
 ROUTE_SPLITS = ("validation", "test")
@@ -73,6 +74,8 @@ class EvaluateConfig:
     thumb_every: int = 2
     thumb_span_s: float = 2.5
     n_jobs: int = 1
+    # the offline optimum over a candidate grid (expoctl.sim.offline_bound), written to reports/eval/offline_bound.json
+    offline_bound: OfflineBoundParams = OfflineBoundParams()
 
     @classmethod
     def from_dict(cls, d: Any, key: str = "evaluate", problems: Problems | None = None) -> "EvaluateConfig":
@@ -120,6 +123,8 @@ class EvaluateConfig:
             share_render=r.boolean("share_render", cls.share_render),
             frontends=tuple(fronts),
             vo=vo_cfg,
+            offline_bound=OfflineBoundParams.from_dict(r.value("offline_bound", None), r.path("offline_bound"),
+                                                       r.problems),
             **ints,
         )
         r.done()

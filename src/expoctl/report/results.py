@@ -2,8 +2,10 @@
 with the oracle and the extra baselines) and reports/figures/*.png (Fig. 6 and Fig. 7 analogues), from
 reports/metrics.json and reports/eval/.
 
-Table conventions: rows are controllers; **bold** marks the best causal controller per column (the oracle is not
-causal: it sees the next frame before choosing, so it is shown in italics as the upper bound and never bolded).
+Table conventions: rows are controllers; **bold** marks the best causal controller per column. The greedy oracle is
+not causal (it sees the next frame before choosing) but is no bound either (one step at a time: a causal controller
+can beat it), so it is shown in italics and never bolded; so is the offline optimum over a grid, when evaluate wrote
+reports/eval/offline_bound.json (expoctl.sim.offline_bound: what no controller restricted to that grid can beat).
 """
 
 from __future__ import annotations
@@ -90,8 +92,10 @@ def metrics_frontends(metrics: dict) -> list[str] | None:
     return None
 
 
-def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bool = False) -> str:
-    """Markdown table: Lighting | Method | Median NFM per front end (ORB, libviso2, …) | Minimum NFM per front end."""
+def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bool = False,
+              bound: dict | None = None) -> str:
+    """Markdown table: Lighting | Method | Median NFM per front end (ORB, libviso2, …) | Minimum NFM per front end.
+    `bound`: offline_bound.json's content, a last row per lighting (its grid and render size in the label)."""
     ctrls = ordered(metrics[split])
     raw = metrics_frontends(metrics) or []
     fes = tuple(f"{fe}_sumlog" for fe in raw) if sumlog else tuple(raw)
@@ -116,9 +120,40 @@ def nfm_table(metrics: dict, split: str, kinds=("static", "dynamic"), sumlog: bo
                 cells.append(s)
             name = label(c) + (" (SL)" if sumlog else "")
             if c == "oracle":
-                name = f"*{name}, upper bound*"
+                name = f"*{name}, one step*"
             lines.append(f"| {'**' + kind.capitalize() + '**' if i == 0 else ''} | {name} | " + " | ".join(cells) + " |")
+        row = bound_row(bound, split, kind, cols)
+        if row:
+            lines.append(f"| | {row[0]}{' (SL)' if sumlog else ''} | " + " | ".join(row[1]) + " |")
     return "\n".join(lines)
+
+
+def bound_label(bound: dict) -> str:
+    """The offline optimum's row label: its grid and the render size it was computed at."""
+    w, h = bound["render_size"]
+    return f"*offline optimum ({bound['grid']['label']}, {w}×{h})*"
+
+
+def bound_row(bound: dict | None, split: str, kind: str, cols) -> tuple[str, list[str]] | None:
+    """(label, cells) of the offline optimum for one split and lighting, or None when it has no such section; a front
+    end it did not bound (the SumLog variants unless evaluate.offline_bound.sumlog) reads —."""
+    per = ((bound or {}).get("metrics") or {}).get(split, {}).get(kind)
+    if not per:
+        return None
+    return bound_label(bound), [f"*{_fmt(per[fe][stat])}*" if fe in per else "—" for stat, fe in cols]
+
+
+def load_bound(reports_dir: str | os.PathLike) -> dict | None:
+    """reports/eval/offline_bound.json (evaluate.offline_bound.enabled), or None when evaluate did not write it."""
+    path = Path(reports_dir) / "eval" / "offline_bound.json"
+    if not path.is_file():
+        return None
+    try:
+        bound = json.loads(path.read_text())
+        bound["grid"]["label"], bound["render_size"][1], bound["metrics"].items()
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
+        raise InputError(f"{path}: not an offline-bound report ({exc!r})") from None
+    return bound
 
 
 def tracking_table(metrics: dict, runs: pd.DataFrame) -> str:
@@ -273,6 +308,7 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
     rcfg = rcfg or ReportConfig()
     reports_dir = Path(reports_dir)
     metrics, frames, runs = load_eval(reports_dir)
+    bound = load_bound(reports_dir)
     fig_dir = reports_dir / "figures"
     written: dict[str, Path] = {}
     figs = {
@@ -294,7 +330,10 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
           "seeds). NFM = inlier feature matches between consecutive frames (fundamental-matrix RANSAC). Per section "
           "(ground-truth static / dynamic): median and minimum NFM over its frames, then the mean over sections. "
           "(SL) = after the SumLog transform tuned on training pairs. **Bold**: best causal controller per column; "
-          "*italics*: the oracle (sees the next frame; an upper bound, not a competitor).", "",
+          "*italics*: references, not competitors: the greedy oracle (sees the next frame and picks one step at a "
+          "time; not a bound, a causal controller can beat it) and, when evaluate computed it, the offline optimum "
+          "(the best any sequence of its grid's settings scores on each section: a bound for controllers "
+          "restricted to that grid, docs/evaluation.md).", "",
           f"Runs: {runs['run_id'].nunique()} ({runs['sequence'].nunique()} windows × "
           f"{runs['controller'].nunique()} controllers), {int(n_frames.sum())} frames "
           f"(median {int(n_frames.median())} per run).", "", "## Headline", ""]
@@ -312,8 +351,8 @@ def build_report(reports_dir: str | os.PathLike, rcfg: ReportConfig | None = Non
     for num, split in (("I", "validation"), ("II", "test")):
         if split not in metrics:
             continue
-        md += [f"## Table {num}: NFM, {SPLIT_TITLE[split]}", "", nfm_table(metrics, split), "",
-               "With SumLog (SL):", "", nfm_table(metrics, split, sumlog=True), ""]
+        md += [f"## Table {num}: NFM, {SPLIT_TITLE[split]}", "", nfm_table(metrics, split, bound=bound), "",
+               "With SumLog (SL):", "", nfm_table(metrics, split, sumlog=True, bound=bound), ""]
     md += ["## Table III: VO tracking successes", "",
            "Monocular frame-to-frame VO (ORB + essential matrix); a run fails when the tracked inliers of a frame pair "
            "fall below the threshold at any frame. Map-tracking VO (`expoctl.vo_map`): each frame is tracked against "

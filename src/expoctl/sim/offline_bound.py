@@ -5,7 +5,8 @@ Public function (`expoctl bench` and evaluate call it; simulator only):
 
     offline_bound(scene, sensor, window: WindowFrames, seed: int, frontends: dict[str, FrontEnd], *,
                   candidates: Sequence[Settings] | None = None, sumlog: dict[str, SumLogParams] | None = None,
-                  min_section_frames: int = 1, camera: int = 1) -> WindowBound
+                  min_section_frames: int = 1, camera: int = 1,
+                  kinds: Sequence[str] | None = ("static", "dynamic")) -> WindowBound
 
     scene, sensor: the window's (evaluate: `runner.window_sim(inputs, window)` .scene / .sensor); seed: the window's
     noise seed (`Window.seed`); frontends: {name: front end} as evaluate builds them; candidates: the grid (default
@@ -270,15 +271,19 @@ class WindowBound:
 
 def offline_bound(scene, sensor, window, seed: int, frontends: dict[str, Any], *,
                   candidates: Sequence[Settings] | None = None, sumlog: dict | None = None,
-                  min_section_frames: int = 1, camera: int = 1) -> WindowBound:
-    """The offline optimum of one window over a candidate grid (module docstring: signature, what it bounds)."""
+                  min_section_frames: int = 1, camera: int = 1,
+                  kinds: Sequence[str] | None = ("static", "dynamic")) -> WindowBound:
+    """The offline optimum of one window over a candidate grid (module docstring: signature, what it bounds).
+    `kinds`: the section labels bounded (default metrics.json's; None: every label, `interior` too)."""
     from expoctl.sim.oracle import OracleParams
 
     t0 = time.perf_counter()
     candidates = list(OracleParams().candidates() if candidates is None else candidates)
     if not candidates:
         raise ValueError("offline_bound: the candidate grid is empty")
-    sections = window_sections(list(window.section), min_section_frames)
+    # only the kinds metrics.json reports: an interior section's K² matches per frame would buy no number
+    sections = [s for s in window_sections(list(window.section), min_section_frames)
+                if kinds is None or s["kind"] in kinds]
     needed = sorted({k for s in sections for k in s["pairs"]})
     timings: dict[str, float] = {}
     mats = pair_matrices(scene, sensor, window, seed, frontends, candidates, sumlog, needed, camera, timings)

@@ -239,5 +239,5 @@ def _build_oracle(config: OracleParams, context: ControllerContext) -> Controlle
 
 
 # registered here, beside the oracle: the controller registry imports this module with its own (plugins.Registry)
-register_controller("oracle", config=OracleParams, factory=_build_oracle, needs=("scene",), label="Oracle",
+register_controller("oracle", config=OracleParams, factory=_build_oracle, needs=("scene",), label="Greedy oracle",
                     colour="#2ca02c", rank=70)(OracleController)

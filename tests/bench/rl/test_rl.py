@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from expoctl.errors import InputError
-from expoctl.rl.config import read_rl_config
+from expoctl.bench.rl.config import read_rl_config
 
 SMALL = {"learning_starts": 40, "batch_size": 16, "checkpoint_every": 60, "log_every": 20,
          "render_size": [80, 60], "obs_size": [40, 30], "buffer_size": 1000, "train_traversals": 2}
@@ -19,7 +19,7 @@ SMALL = {"learning_starts": 40, "batch_size": 16, "checkpoint_every": 60, "log_e
 
 @pytest.fixture(scope="module")
 def agent(tmp_path_factory):
-    from expoctl.rl.train import train
+    from expoctl.bench.rl.train import train
 
     folder = tmp_path_factory.mktemp("proj") / "models" / "rl"
     logged = []
@@ -40,7 +40,7 @@ def test_trains_checkpoints_and_resumes(agent):
 
 
 def test_resume_refuses_other_settings(agent):
-    from expoctl.rl.train import train
+    from expoctl.bench.rl.train import train
 
     with pytest.raises(InputError, match=r"rl\.gamma"):
         train(read_rl_config({**SMALL, "total_steps": 300, "gamma": 0.5}), agent[0], scale="fixture")
@@ -50,8 +50,8 @@ def test_controller_acts_as_the_policy_in_the_env(agent):
     """The controller, given the full-size frame, builds the env's observation and takes the policy's action."""
     from expoctl.bench.env import ExposureEnv
     from expoctl.controllers.base import Settings
-    from expoctl.controllers.rl import RLController
-    from expoctl.rl.agent import feature_env
+    from expoctl.bench.rl.controller import RLController
+    from expoctl.bench.rl.agent import feature_env
 
     cfg = read_rl_config({**SMALL, "total_steps": 200})
     ctrl = RLController.from_folder(agent[0])
@@ -77,7 +77,7 @@ def test_controller_acts_as_the_policy_in_the_env(agent):
 def test_bench_scores_rl_when_trained_and_skips_it_when_not(agent, tmp_path):
     from expoctl.bench.config import packaged_config_text
     from expoctl.bench.score import plan_benchmark, run_benchmark
-    from expoctl.controllers.rl import with_rl
+    from expoctl.bench.rl.controller import with_rl
 
     cfg = yaml.safe_load(packaged_config_text("fixture"))
     root = agent[0].parent.parent
@@ -109,6 +109,6 @@ def test_train_rl_stage_off_writes_only_its_marker(tmp_path):
     run(cfg, Tracker(), project_root=tmp_path)
     assert sorted(p.name for p in (tmp_path / "models" / "rl").iterdir()) == ["DISABLED.json"]
     with pytest.raises(InputError, match="train_rl stage is off"):
-        from expoctl.controllers.rl import RLController
+        from expoctl.bench.rl.controller import RLController
 
         RLController.from_folder(tmp_path / "models" / "rl")

@@ -2,7 +2,7 @@
 
 `train(config, out_dir, ...)`: a stable-baselines3 SAC or PPO agent (`rl.algorithm`) on `ExposureEnv(split="train")`
 (stretches of the training city under the `bench-train` seeds: never an evaluation window, expoctl.bench.episodes),
-its observation turned into the agent's feature vector (expoctl.rl.agent). Every `checkpoint_every` steps and at the
+its observation turned into the agent's feature vector (expoctl.bench.rl.agent). Every `checkpoint_every` steps and at the
 end it writes the agent folder (agent.zip, SAC's replay buffer, agent.json), each file replaced atomically, so an
 interrupted run leaves its last checkpoint. A later call on the same folder continues from the saved step count up
 to the new `total_steps` (the environment and learner keys must match the checkpoint's; `total_steps`,
@@ -29,8 +29,8 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from expoctl.errors import InputError
-from expoctl.rl.agent import agent_paths, algorithm_class, feature_env, read_meta
-from expoctl.rl.config import RLConfig
+from expoctl.bench.rl.agent import agent_paths, algorithm_class, feature_env, read_meta
+from expoctl.bench.rl.config import RLConfig
 
 log = logging.getLogger(__name__)
 

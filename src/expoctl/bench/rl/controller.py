@@ -1,9 +1,9 @@
 """The reinforcement-learning baseline as a controller: a stable-baselines3 agent trained in `expoctl/Exposure-v0`
-(`expoctl.rl.train`, the optional train_rl stage), driven wherever a controller is (evaluate, `expoctl bench`).
+(`expoctl.bench.rl.train`, the optional train_rl stage), driven wherever a controller is (evaluate, `expoctl bench`).
 
 Per frame it does what the environment does around the agent: the observation from the frame and the settings it
 was exposed with (`expoctl.bench.env.observation`: the same resize to the training obs_size), the agent's feature
-vector (`expoctl.rl.agent.features`), the policy's deterministic action, and that action's settings
+vector (`expoctl.bench.rl.agent.features`), the policy's deterministic action, and that action's settings
 (`expoctl.bench.actions.ActionMap`, the training action mode) applied at the next frame (the env's one frame of
 latency). Everything it rebuilds comes from the agent folder's agent.json, so it cannot drift from training.
 
@@ -52,7 +52,7 @@ class RLController(Controller):
 
     @classmethod
     def from_folder(cls, folder) -> "RLController":
-        from expoctl.rl.agent import load_agent
+        from expoctl.bench.rl.agent import load_agent
 
         return cls(*load_agent(folder))
 
@@ -62,7 +62,7 @@ class RLController(Controller):
     def features(self, image: np.ndarray, applied: Settings) -> np.ndarray:
         """The policy's input for frame t, exactly as the training environment built it."""
         from expoctl.bench.env import observation
-        from expoctl.rl.agent import features
+        from expoctl.bench.rl.agent import features
 
         if (image.shape[1], image.shape[0]) != self.render_size and not self._warned:
             log.warning("rl: frames are %dx%d, the agent was trained on %dx%d renders: its observations differ "
@@ -103,7 +103,7 @@ def with_rl(cfg: dict, root, names: list[str] | None = None) -> tuple[dict, str 
 
     from expoctl.controllers.registry import controller_names
     from expoctl.errors import InputError
-    from expoctl.rl.agent import agent_paths
+    from expoctl.bench.rl.agent import agent_paths
 
     cfg = copy.deepcopy(cfg)
     ev = cfg.setdefault("evaluate", {})

@@ -1,4 +1,0 @@
-"""The reinforcement-learning baseline (docs/benchmark.md, "A reinforcement-learning baseline"): a stable-baselines3
-agent (SAC or PPO) trained in `expoctl/Exposure-v0` on the training city only (`expoctl.rl.train`), driven as the
-`rl` controller (`expoctl.controllers.rl`). Needs the `rl` extra (stable-baselines3); nothing here imports it at
-module level, so the registry loads without it."""
