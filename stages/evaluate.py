@@ -71,9 +71,9 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
 
 def write_offline_bound(inputs: EvaluationInputs, result, eval_dir: Path, tracker, parallel) -> Path:
     """reports/eval/offline_bound.json: the offline optimum of every evaluated window over the grid
-    (expoctl.sim.offline_bound, `evaluate.offline_bound`); its aggregate numbers go to MLflow as offline_bound.*."""
+    (expoctl.evaluation.offline_bound, `evaluate.offline_bound`); its aggregate numbers go to MLflow as offline_bound.*."""
     from expoctl.io import write_json
-    from expoctl.sim.offline_bound import evaluate_bounds
+    from expoctl.evaluation.offline_bound import evaluate_bounds
 
     t0 = time.perf_counter()
     bound = evaluate_bounds(inputs, result.windows, result.sumlog, parallel)

@@ -54,7 +54,7 @@ def leaderboard_rows(metrics: dict, runs, frontends: Sequence[str], labels: dict
 
 
 def bound_rows(bound: dict, frontends: Sequence[str]) -> list[dict[str, Any]]:
-    """One reference row per split for the offline optimum (`expoctl.sim.offline_bound.evaluate_bounds`): per front
+    """One reference row per split for the offline optimum (`expoctl.evaluation.offline_bound.evaluate_bounds`): per front
     end the mean over sections of each section's best attainable median and minimum on the grid; no VO, no time."""
     label = f"Offline optimum ({bound['grid']['label']})"
     rows = []

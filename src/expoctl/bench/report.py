@@ -8,7 +8,7 @@ leaderboard.json:
   leaderboard: the rows (`expoctl.bench.leaderboard.leaderboard_rows`)
   metrics:     evaluate's metrics.json object for these controllers (docs/evaluation.md)
   offline_bound: with --bound, the offline optimum per window, section and front end, its grid and paths
-               (`expoctl.sim.offline_bound.evaluate_bounds`), else null
+               (`expoctl.evaluation.offline_bound.evaluate_bounds`), else null
 """
 
 from __future__ import annotations

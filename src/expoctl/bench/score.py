@@ -140,7 +140,7 @@ class BenchmarkOutcome:
     result: Any                      # EvaluationResult (metrics.json object, per-frame and per-run tables)
     sumlog_source: str
     seconds: float
-    bound: dict | None = None        # `expoctl.sim.offline_bound.evaluate_bounds`'s object, when asked for
+    bound: dict | None = None        # `expoctl.evaluation.offline_bound.evaluate_bounds`'s object, when asked for
 
 
 def run_benchmark(plan: BenchmarkPlan, project_root: str | os.PathLike = ".", progress: bool = False,
@@ -164,7 +164,7 @@ def run_benchmark(plan: BenchmarkPlan, project_root: str | os.PathLike = ".", pr
                               plan.references)
     bounds = None
     if bound:
-        from expoctl.sim.offline_bound import evaluate_bounds
+        from expoctl.evaluation.offline_bound import evaluate_bounds
 
         bounds = evaluate_bounds(inputs, plan.windows, sumlog, parallel)
     return BenchmarkOutcome(plan, result, source, time.perf_counter() - t0, bounds)

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from expoctl.camera.ranges import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
-from expoctl.config_reader import Problems, Section, is_integer
+from expoctl.config_reader import Problems, Section, is_integer, param, read_config
+from expoctl.controllers.base import Settings
 from expoctl.controllers.registry import CONTROLLERS
 from expoctl.features.registry import FRONTENDS
-from expoctl.sim.offline_bound import OfflineBoundParams
 from expoctl.vo.local_map import MapTrackerConfig
 
 ROUTE_SPLITS = ("validation", "test")
@@ -50,6 +50,36 @@ def _default_controllers() -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
+class OfflineBoundParams:
+    """Config `evaluate.offline_bound` (conf/evaluate/default.yaml)."""
+
+    enabled: bool = False  # off by default: K candidates cost K² matches per frame and front end (docs/evaluation.md)
+    # the grid: null takes controllers.oracle's ladder (exposures_us at 0 dB, then gains_db at the longest exposure);
+    # a list gives the bound its own ladder of the same shape
+    exposures_us: tuple[float, ...] | None = param(None, min=19.0, max=30000.0, unit="µs")
+    gains_db: tuple[float, ...] | None = param(None, min=0.0, max=30.0, unit="dB", empty=True)
+    sumlog: bool = False  # also bound the SumLog variants (<fe>_sumlog): twice the extraction and matching
+
+    @classmethod
+    def from_dict(cls, d: Any, key: str = "evaluate.offline_bound", problems=None) -> "OfflineBoundParams":
+        return read_config(cls, d, key, problems)
+
+    def check(self, r) -> None:
+        if (self.exposures_us is None) != (self.gains_db is None):
+            r.problem("gains_db" if self.gains_db is None else "exposures_us",
+                      "give exposures_us and gains_db together (the bound's own ladder), or both null (the oracle's)")
+
+    def candidates(self, oracle=None) -> list[Settings]:
+        """The grid: this config's own ladder, or `oracle`'s (controllers.oracle's OracleParams; default its defaults)."""
+        from expoctl.sim.oracle import OracleParams
+
+        if self.exposures_us is not None:
+            return OracleParams(exposures_us=self.exposures_us, gains_db=self.gains_db).candidates()
+        return (oracle or OracleParams()).candidates()
+
+
+
+@dataclass(frozen=True)
 class EvaluateConfig:
     # null in the config: every registered controller (built-ins and installed plugins), in table order
     # (but opt-in ones, `rl`: expoctl.controllers.registry.controller_names; the evaluate stage adds those whose
@@ -74,7 +104,7 @@ class EvaluateConfig:
     thumb_every: int = 2
     thumb_span_s: float = 2.5
     n_jobs: int = 1
-    # the offline optimum over a candidate grid (expoctl.sim.offline_bound), written to reports/eval/offline_bound.json
+    # the offline optimum over a candidate grid (expoctl.evaluation.offline_bound), written to reports/eval/offline_bound.json
     offline_bound: OfflineBoundParams = OfflineBoundParams()
 
     @classmethod

@@ -5,7 +5,7 @@ reports/metrics.json and reports/eval/.
 Table conventions: rows are controllers; **bold** marks the best causal controller per column. The greedy oracle is
 not causal (it sees the next frame before choosing) but is no bound either (one step at a time: a causal controller
 can beat it), so it is shown in italics and never bolded; so is the offline optimum over a grid, when evaluate wrote
-reports/eval/offline_bound.json (expoctl.sim.offline_bound: what no controller restricted to that grid can beat).
+reports/eval/offline_bound.json (expoctl.evaluation.offline_bound: what no controller restricted to that grid can beat).
 """
 
 from __future__ import annotations

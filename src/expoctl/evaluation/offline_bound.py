@@ -50,7 +50,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from expoctl.config_reader import param, read_config
+from expoctl.evaluation.config import OfflineBoundParams  # noqa: F401 (re-exported: the bound's config)
 from expoctl.controllers.base import Controller, Settings
 
 #: the statistics a section's bound holds, per front-end variant
@@ -60,33 +60,7 @@ STATS = ("min", "sum", "median")
 # --------------------------------------------------------------------------------------------------------- config
 
 
-@dataclass(frozen=True)
-class OfflineBoundParams:
-    """Config `evaluate.offline_bound` (conf/evaluate/default.yaml)."""
-
-    enabled: bool = False  # off by default: K candidates cost K² matches per frame and front end (docs/evaluation.md)
-    # the grid: null takes controllers.oracle's ladder (exposures_us at 0 dB, then gains_db at the longest exposure);
-    # a list gives the bound its own ladder of the same shape
-    exposures_us: tuple[float, ...] | None = param(None, min=19.0, max=30000.0, unit="µs")
-    gains_db: tuple[float, ...] | None = param(None, min=0.0, max=30.0, unit="dB", empty=True)
-    sumlog: bool = False  # also bound the SumLog variants (<fe>_sumlog): twice the extraction and matching
-
-    @classmethod
-    def from_dict(cls, d: Any, key: str = "evaluate.offline_bound", problems=None) -> "OfflineBoundParams":
-        return read_config(cls, d, key, problems)
-
-    def check(self, r) -> None:
-        if (self.exposures_us is None) != (self.gains_db is None):
-            r.problem("gains_db" if self.gains_db is None else "exposures_us",
-                      "give exposures_us and gains_db together (the bound's own ladder), or both null (the oracle's)")
-
-    def candidates(self, oracle=None) -> list[Settings]:
-        """The grid: this config's own ladder, or `oracle`'s (controllers.oracle's OracleParams; default its defaults)."""
-        from expoctl.sim.oracle import OracleParams
-
-        if self.exposures_us is not None:
-            return OracleParams(exposures_us=self.exposures_us, gains_db=self.gains_db).candidates()
-        return (oracle or OracleParams()).candidates()
+# the config group `evaluate.offline_bound` lives with evaluate's other config (expoctl.evaluation.config)
 
 
 def grid_label(candidates: Sequence[Settings]) -> str:

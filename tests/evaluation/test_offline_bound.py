@@ -1,4 +1,4 @@
-"""The offline bound (expoctl.sim.offline_bound): its dynamic programmes against brute force, and on a tiny closed
+"""The offline bound (expoctl.evaluation.offline_bound): its dynamic programmes against brute force, and on a tiny closed
 loop every built-in causal controller restricted to the grid scores at or below it, while the bound's own path,
 driven as a controller through evaluate's loop, attains it exactly."""
 
@@ -20,7 +20,7 @@ from expoctl.evaluation.run import WindowFrames, drive_window
 from expoctl.features.orb import OrbFrontEnd
 from expoctl.features.sumlog import SumLogParams
 from expoctl.features.viso.frontend import VisoFrontEnd
-from expoctl.sim.offline_bound import (GridController, OfflineBoundParams, ScheduleController, best_path, grid_label,
+from expoctl.evaluation.offline_bound import (GridController, OfflineBoundParams, ScheduleController, best_path, grid_label,
                                        kth_largest_bound, offline_bound, pair_matrices, path_values, section_bound,
                                        snap, window_sections)
 from expoctl.sim.oracle import CachedScene, OracleParams
