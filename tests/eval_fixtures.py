@@ -86,6 +86,7 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
     window = {"window": "portal", "before_s": 0.6, "after_s": 0.6, "windows": [1]}
     return {
         "seed": 0,
+        "numerics": {"mode": "pinned"},  # conf/numerics/default.yaml: every computing stage selects it
         "scale_name": "fixture",
         "sensor": {},
         "rig": {},

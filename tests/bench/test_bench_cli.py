@@ -58,7 +58,13 @@ def benched(project, tmp_path_factory):
                    "--mlflow-uri", f"sqlite:///{store}", "--out", "out"])
     finally:
         os.chdir(cwd)
-    return rc, json.loads((root / "out/leaderboard.json").read_text()), store
+    yield rc, json.loads((root / "out/leaderboard.json").read_text()), store
+    # `main` ran in this process: the user's class stays registered as "hold" (as it would in a user's script);
+    # other test modules expect only the installed controllers
+    from expoctl.controllers.registry import CONTROLLERS
+
+    CONTROLLERS.unregister("hold")
+    sys.modules.pop("user_ctl", None)
 
 
 def test_user_controller_is_scored_beside_the_baselines(benched, project):

@@ -46,7 +46,8 @@ RUNTIME_DATA: dict[str, list[str]] = {
 }
 #: modules that use `__file__` only to locate the project root (the files they read are params or data deps). Not
 #: listed either: stages/dvcfile.py reads dvc.yaml and dvc.lock, only to name what a failed stage left behind.
-NO_RUNTIME_DATA = {"stages/project.py", "stages/sweep.py"}
+#: stages/numerics.py reads configs/resolved.yaml's `numerics` block, a param of every computing stage.
+NO_RUNTIME_DATA = {"stages/project.py", "stages/sweep.py", "stages/numerics.py"}
 
 
 def _rel(path: Path) -> str:

@@ -7,12 +7,6 @@ killed (its own process group) — also when the test fails.
 from __future__ import annotations
 
 import json
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 import urllib.parse
 import urllib.request
 
@@ -21,14 +15,7 @@ import pytest
 from eval_fixtures import make_fixture_project, use_real_or_test_sensor
 
 from expoctl.host import host_cpu
-
-STARTUP_TIMEOUT_S = 240.0  # a loaded shared 2-core machine took 87 s to start it
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.support.mlflow_ui import mlflow_server as support_mlflow_server
 
 
 def _get(base: str, endpoint: str, **params) -> dict:
@@ -46,41 +33,9 @@ def _post(base: str, path: str, body: dict) -> dict:
 
 @pytest.fixture()
 def mlflow_server(tmp_path):
-    port = _free_port()
-    log = open(tmp_path / "server.log", "wb")
-    cmd = [sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
-           "--backend-store-uri", f"sqlite:///{tmp_path / 'server.db'}",
-           "--artifacts-destination", str(tmp_path / "artifacts")]
-    t0 = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=tmp_path)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while True:
-            if proc.poll() is not None:
-                pytest.fail(f"mlflow server exited ({proc.returncode}):\n{(tmp_path / 'server.log').read_text()[-3000:]}")
-            try:
-                with urllib.request.urlopen(f"{base}/health", timeout=2) as r:
-                    if r.status == 200:
-                        break
-            except OSError:
-                pass
-            if time.monotonic() > deadline:
-                pytest.fail(f"mlflow server not healthy after {STARTUP_TIMEOUT_S:.0f} s:\n"
-                            f"{(tmp_path / 'server.log').read_text()[-3000:]}")
-            time.sleep(0.5)
-        print(f"mlflow server healthy after {time.monotonic() - t0:.1f} s")
+    """A real `mlflow server` on 127.0.0.1 over a store in tmp_path (tests/support/mlflow_ui.py); its base URL."""
+    with support_mlflow_server(tmp_path) as base:
         yield base
-    finally:
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)  # the server and its worker processes (own session)
-            proc.wait(timeout=15)
-        except ProcessLookupError:
-            pass
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=15)
-        log.close()
 
 
 def test_server_serves_one_run_per_controller_and_city(tmp_path, mlflow_server, monkeypatch):

@@ -27,6 +27,7 @@ def make_cfg(tmp: Path, **train) -> dict:
     p = make_synthetic_dataset(tmp / "data", n_sequences=4, n_frames=10, hw=(32, 32), seed=0)
     return {
         "seed": 0,
+        "numerics": {"mode": "pinned"},  # conf/numerics/default.yaml
         "sensor": {},  # the defaults' response (read only with train.exposure_shift_probability > 0)
         "model": {"input_size": 32, "conv_widths": [8, 8, 16, 16], "conv_kernels": [3, 3, 3], "pool": 2,
                   "fc_widths": [16, 8, 8], "dropout": 0.1},
