@@ -22,8 +22,9 @@ def _ran(output: str) -> set[str]:
 ITERATION2 = {"collect_iter@2", "ingest_iter@2", "features_iter@2", "labels_iter@2", "samples_iter@2", "train_iter@2"}
 ITERATION3 = {name.replace("@2", "@3") for name in ITERATION2}
 # guard runs on every repro (always changed) and writes nothing but its stamp; it logs no MLflow run
+# train_rl is off by default: it runs and writes only its marker models/rl/DISABLED.json
 ALL_STAGES = ({"guard", "compose", "collect", "ingest", "features", "labels", "samples", "train", "select_model", "evaluate",
-               "report"}
+               "report", "train_rl"}
               | ITERATION2 | ITERATION3)
 
 

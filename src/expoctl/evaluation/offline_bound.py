@@ -20,7 +20,7 @@ each front end's features of every (t, c) once and matches every pair: N_t[i, j]
 image(t, j)) with `pair_seed(sequence, t, variant)`, exactly `run.PairMatches`' rule. The built-in front ends'
 `match` is a pure function of (features, features, seed) (evaluate makes fresh front ends per run only because a
 plugin's might keep state; none of the built-ins does), so a grid-restricted controller's evaluate NFM at frame t is
-the matrix entry of its path, N_t[c(t−1), c(t)] (tests/sim/test_offline_bound.py asserts it on every frame). A
+the matrix entry of its path, N_t[c(t−1), c(t)] (tests/evaluation/test_offline_bound.py asserts it on every frame). A
 front end whose matcher did keep state would break that equality, and the bound would bound only the matrix.
 
 Why it bounds: offline, any sequence of grid settings is feasible (a schedule commanding c(t+1) at frame t is a
