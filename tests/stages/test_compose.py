@@ -103,7 +103,7 @@ def test_good_params_write_resolved_config(project, capsys):
     ("overrides: [world.cities.test=nowhere]\n", [f"config key 'world.cities.test': {UNKNOWN_CITY}"]),
     ("overrides: [+unused_note=hello]\n", [
         "config key 'unused_note': unknown key (expected one of ['collect', 'controllers', 'evaluate', 'features', "
-        "'ingest', 'iteration2', 'iteration3', 'labels', 'model', 'numerics', 'parallel', 'paths', 'report', 'rig', "
+        "'ingest', 'iteration2', 'iteration3', 'labels', 'model', 'numerics', 'parallel', 'paths', 'report', 'rig', 'rl', "
         "'samples', 'scale_name', 'seed', 'select_model', 'sensor', 'train', 'world'])"]),
     ("overrides: [scale=huge]\n", ["params.yaml overrides ['scale=huge']: In 'config': Could not find "
                                    "'scale/huge'"]),
