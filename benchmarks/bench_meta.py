@@ -1,4 +1,5 @@
-"""Machine and invocation metadata that every benchmark's JSON records (the machines are shared and noisy)."""
+"""What the benchmarks share: the machine and invocation metadata every benchmark's JSON records (the machines are
+shared and noisy), and the resolved default config."""
 
 from __future__ import annotations
 
@@ -16,3 +17,15 @@ def run_metadata() -> dict:
     script = Path(sys.argv[0])
     return {"cpu_count": os.cpu_count(), "host_cpu": host_cpu(), "load_average_1min": os.getloadavg()[0],
             "python": platform.python_version(), "command": " ".join([f"benchmarks/{script.name}", *sys.argv[1:]])}
+
+
+def default_config(overrides: list[str] | None = None) -> dict:
+    """The project's resolved config with `overrides`, composed as the compose stage does: the controllers'
+    `${sensor.…}` and `${controllers.agae}` interpolations resolved (reading conf/*/default.yaml raw leaves them as
+    strings, which the config readers refuse)."""
+    root = Path(__file__).resolve().parents[1]
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    from stages.compose import compose_config
+
+    return compose_config(list(overrides or []))

@@ -14,20 +14,13 @@ import dataclasses
 import json
 import os
 import resource
+import sys
 import time
 from pathlib import Path
 
-import yaml
-
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def load_cfg() -> dict:
-    cfg = {"seed": 0, "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt"}}
-    for group in ("world", "rig", "sensor", "controllers", "features", "evaluate"):
-        p = ROOT / "conf" / group / "default.yaml"
-        cfg[group] = yaml.safe_load(p.read_text()) if p.exists() else {}
-    return cfg
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_meta import default_config  # noqa: E402
 
 
 def cpu_s() -> float:
@@ -50,8 +43,7 @@ def main() -> None:
     rows = []
     for size in args.sizes:
         w, h = (int(v) for v in size.split("x"))
-        cfg = load_cfg()
-        cfg["evaluate"]["render_size"] = [w, h]
+        cfg = default_config([f"evaluate.render_size=[{w},{h}]"])
         inputs = EvaluationInputs.from_resolved(cfg)
         windows = plan_windows(inputs, ROOT)
         win = dataclasses.replace(windows[0], stop=windows[0].start + args.frames)

@@ -10,9 +10,9 @@ CPU seconds per frame are split into those three parts (WindowBound.timings). Th
 
 The extrapolation multiplies the per-frame cost by the frames the default evaluate bounds: every frame of a static
 or dynamic section (interior sections are not bounded) of every evaluation window, counted from the windows'
-labels. One thread per process, as evaluate's workers run.
+labels. Run it with one numba and OpenMP thread, as evaluate's workers run (the figures in benchmarks/README.md):
 
-    .venv/bin/python benchmarks/offline_bound_cost.py --sizes 160x120 640x480 --frames 12
+    NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 .venv/bin/python benchmarks/offline_bound_cost.py --sizes 160x120 640x480 --frames 8
 """
 
 from __future__ import annotations
@@ -22,20 +22,13 @@ import dataclasses
 import json
 import os
 import resource
+import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def load_cfg(overrides: list[str]) -> dict:
-    """The resolved default config (Hydra-composed as the compose stage does, interpolations resolved)."""
-    import sys
-
-    sys.path.insert(0, str(ROOT))
-    from stages.compose import compose_config
-
-    return compose_config(overrides)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_meta import default_config  # noqa: E402
 
 
 def cpu_s() -> float:
@@ -72,7 +65,7 @@ def main() -> None:
     rows = []
     for size in args.sizes:
         w, h = (int(v) for v in size.split("x"))
-        cfg = load_cfg([f"evaluate.render_size=[{w},{h}]"])
+        cfg = default_config([f"evaluate.render_size=[{w},{h}]"])
         inputs = EvaluationInputs.from_resolved(cfg)
         windows = plan_windows(inputs, ROOT)
         win = dataclasses.replace(windows[0], stop=windows[0].start + args.frames)
