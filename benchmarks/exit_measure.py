@@ -141,13 +141,15 @@ def main() -> int:
         else:
             from expoctl.evaluation.inputs import EvaluationInputs
             from expoctl.evaluation.runner import evaluate, write_outputs
+            from expoctl.parallel import ParallelConfig
             from stages.compose import compose_config
 
             for name, *overrides in args.case:
                 if not any(o.startswith("evaluate.controllers=") for o in overrides):
                     overrides = ["evaluate.controllers=[agae,fixed,mean_intensity]", *overrides]
                 t1 = time.time()
-                res = evaluate(EvaluationInputs.from_resolved(compose_config(list(overrides))), ROOT)
+                cfg = compose_config(list(overrides))  # parallel.n_jobs=2 in a case: two worker processes
+                res = evaluate(EvaluationInputs.from_resolved(cfg), ROOT, parallel=ParallelConfig.from_resolved(cfg))
                 if args.keep:
                     write_outputs(res, args.keep / name)
                 results[name] = summarise(res.frames, res.runs, res.metrics)

@@ -95,9 +95,9 @@ def time_compute_features(frontends, n_jobs_list) -> list[dict]:
         frames = generated_project(Path(tmp))
         for fronts in ([["orb"]] + ([frontends] if len(frontends) > 1 else [])):
             for run, n_jobs in enumerate(n_jobs_list):
-                params = {"frontends": fronts, "n_jobs": n_jobs}
+                params = {"frontends": fronts}
                 t0 = time.perf_counter()
-                feats, matches = compute_features(frames, tmp, params, progress=False)
+                feats, matches = compute_features(frames, tmp, params, n_jobs=n_jobs, progress=False)
                 seconds = time.perf_counter() - t0
                 rows.append({"frontends": "+".join(fronts), "n_jobs": n_jobs, "run": run, "n_images": len(frames),
                              "n_pair_rows": len(matches), "seconds": seconds, "images_per_s": len(frames) / seconds,

@@ -38,7 +38,8 @@ from expoctl.io import write_png  # noqa: E402
 from expoctl.parallel import ParallelConfig  # noqa: E402
 
 PARAMS = {"frontends": ["orb"], "orb": {"working_size": None, "count_nfeatures": 2000, "match_nfeatures": 1000},
-          "n_jobs": 2, "seed": 0}
+          "seed": 0}
+N_JOBS = 2  # worker processes of the processes backend (the ray backend runs one task per cluster CPU)
 W, H, N_FRAMES = 320, 240, 10
 
 
@@ -83,7 +84,8 @@ def main() -> None:
         images = root / "images"
         times, reference = time_backend(frames, images, ParallelConfig("inprocess"), args.repeats)
         results["inprocess"] = times
-        results["processes"], _ = time_backend(frames, images, ParallelConfig("processes"), args.repeats, reference)
+        results["processes"], _ = time_backend(frames, images, ParallelConfig("processes", n_jobs=N_JOBS), args.repeats,
+                                                   reference)
         for n_nodes in (1, 2):
             # one raylet with both CPUs, or two raylets with one each
             name = f"ray, {n_nodes} node{'s' if n_nodes > 1 else ''}"

@@ -31,7 +31,7 @@ def run(cfg: dict, tracker, project_root: Path | None = None) -> None:
     except Exception as exc:  # pyarrow raises several types for a damaged file
         raise InputError(f"{frames_path}: not a readable Parquet file ({exc})") from None
 
-    effective = {"frontends": list(fcfg.frontends), "n_jobs": fcfg.n_jobs}
+    effective = {"frontends": list(fcfg.frontends)}
     for name in fcfg.frontends:  # each front end's typed config, defaults filled in
         effective[name] = dataclasses.asdict(fcfg.config(name))
     tracker.log_params({"effective": effective})

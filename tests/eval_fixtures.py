@@ -102,9 +102,9 @@ def make_fixture_project(root, controllers=None, n_jobs: int = 1) -> dict:
                                                          "oracle")),
                      "splits": {"validation": window, "test": window}, "warmup_frames": 2, "sumlog_pairs": 3,
                      "min_section_frames": 3, "vo": {"min_inliers": 8, "n_features": 500}, "thumb_width": 48,
-                     "thumb_span_s": 1.0, "n_jobs": n_jobs},
-        # n_jobs above picks in-process (1) or worker processes on this host, as conf/parallel/default.yaml does
-        "parallel": {"backend": "processes", "address": None},
+                     "thumb_span_s": 1.0},
+        # n_jobs picks in-process (1) or worker processes on this host, as conf/parallel/default.yaml does
+        "parallel": {"backend": "processes", "address": None, "n_jobs": n_jobs},
         "report": {"strip_split": "test", "strip_portal": "exit", "strip_columns": 4},
         # the evaluate stage drives the pipeline's final model (select_model's choice; here the one fixture model)
         "paths": {"frames": "data/frames.parquet", "model": "models/controller.pt", "reports_dir": "reports",

@@ -46,6 +46,26 @@ def test_config_defaults_and_reading():
     assert ParallelConfig.from_resolved({}) == ParallelConfig()
     assert ParallelConfig.from_dict({"backend": "ray", "address": "10.0.0.1:6379"}).address == "10.0.0.1:6379"
     assert ParallelConfig.from_resolved({"parallel": {"backend": "inprocess", "address": None}}) == INPROCESS
+    assert ParallelConfig().n_jobs == 1 and ParallelConfig.from_dict({"n_jobs": 3}).workers == 3
+    import os
+
+    assert ParallelConfig.from_dict({"n_jobs": -1}).workers == (os.cpu_count() or 1)
+
+
+def test_with_jobs_overrides_the_worker_count_and_checks_it():
+    base = ParallelConfig("processes", n_jobs=2)
+    assert base.with_jobs(None) is base and base.with_jobs(4) == ParallelConfig("processes", None, 4)
+    with pytest.raises(ConfigError) as e:
+        base.with_jobs(0)
+    assert e.value.key == "parallel.n_jobs"
+
+
+def test_the_worker_count_comes_from_the_config_when_not_given():
+    """run_ordered without n_jobs uses parallel.n_jobs: 1 runs here, 2 in worker processes."""
+    import os
+
+    assert {r[1] for r in collect_all(slow_square, ITEMS[:2], parallel=ParallelConfig(n_jobs=1))} == {os.getpid()}
+    assert os.getpid() not in {r[1] for r in collect_all(slow_square, ITEMS[:2], parallel=ParallelConfig(n_jobs=2))}
 
 
 @pytest.mark.parametrize("d, key, problem", [
@@ -53,6 +73,8 @@ def test_config_defaults_and_reading():
     ({"backend": "ray"}, "parallel.address", "missing: the ray backend connects to an existing cluster"),
     ({"backend": "ray", "address": 6379}, "parallel.address", "must be a non-empty string or null, got 6379"),
     ({"workers": 3}, "parallel.workers", "unknown key"),
+    ({"n_jobs": 0}, "parallel.n_jobs", "must be a positive integer or -1 (one worker per core), got 0"),
+    ({"n_jobs": 1.5}, "parallel.n_jobs", "must be a positive integer or -1 (one worker per core), got 1.5"),
 ])
 def test_bad_config_names_the_full_key(d, key, problem):
     with pytest.raises(ConfigError) as e:

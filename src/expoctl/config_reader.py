@@ -246,6 +246,12 @@ class Section:
         """This section's keys as an instance of the typed config dataclass `cls` (`read_config`)."""
         return _read_dataclass(self, cls)
 
+    def moved(self, name: str, new_key: str, note: str = "") -> None:
+        """A key that no longer belongs here: given, it is one problem naming where it went."""
+        self._read.add(name)
+        if name in self.mapping:
+            self.problem(name, f"moved to {new_key}" + (f" ({note})" if note else ""))
+
     # ---------------------------------------------------------------------------------------------------- end
 
     def done(self, known: Sequence[str] | None = None) -> None:

@@ -1,13 +1,13 @@
 """One fan-out layer for the stages that run independent jobs: collect (one sequence each), features (one sequence
 each), evaluate and model selection (one run each), the saturation probe (one candidate each).
 
-`run_ordered(fn, items, n_jobs, parallel)` calls the module-level function `fn` on every item and yields
+`run_ordered(fn, items, parallel=parallel)` calls the module-level function `fn` on every item and yields
 `(item, fn(item))` in the order of `items`, whatever the backend and whatever order the jobs finish in, so the
 results — and every byte a caller writes from them — do not depend on where the work ran. Backends
 (`ParallelConfig`, config group `parallel`):
 
-- `inprocess`: a plain loop in this process (also what every backend does for one job or n_jobs == 1);
-- `processes`: `n_jobs` spawned worker processes on this host, one BLAS/OpenMP/numba thread each
+- `inprocess`: a plain loop in this process (also what `processes` does for one job or n_jobs == 1);
+- `processes`: `parallel.n_jobs` spawned worker processes on this host, one BLAS/OpenMP/numba thread each
   (`expoctl.host.single_threaded_children`); spawn, not fork: workers may load torch or OpenCV, whose threads make a
   forked child hang on a lock they held;
 - `ray`: the tasks go to an existing Ray cluster (`ray.init(address=…)`; `ray` is an optional extra), one CPU and one
@@ -29,11 +29,11 @@ import socket
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from typing import Any, TypeVar
 
-from expoctl.config_reader import Problems, Section
+from expoctl.config_reader import Problems, Section, is_integer
 from expoctl.errors import ConfigError
 
 T = TypeVar("T")
@@ -43,6 +43,8 @@ BACKENDS = ("inprocess", "processes", "ray")
 #: the environment every worker (process or Ray task) runs with: one thread per library, so n workers use n cores
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                      "NUMBA_NUM_THREADS": "1"}
+#: why a stage group's old `n_jobs` key is refused: the worker count is `parallel.n_jobs` now, a runtime setting
+MOVED_N_JOBS = "one worker count for every stage, not a stage param; changed 2026-12-07, docs/scale_out.md"
 #: seconds allowed for the TCP connection to a Ray cluster's address before it is called unreachable
 CONNECT_TIMEOUT_S = 5.0
 _POLL_S = 0.5  # how often waiting for jobs also forwards worker messages
@@ -54,6 +56,9 @@ class ParallelConfig:
 
     backend: str = "processes"
     address: str | None = None  # ray: the cluster's address, host:port of its head (`ray start --head --port`)
+    #: processes: worker processes on this host per stage (-1: one per core; 1: the jobs run in this process). The
+    #: ray backend ignores it (the cluster's CPUs bound the jobs at once). Never changes a result.
+    n_jobs: int = 1
 
     @classmethod
     def from_dict(cls, d: Any, key: str = "parallel", problems: Problems | None = None) -> "ParallelConfig":
@@ -63,8 +68,27 @@ class ParallelConfig:
         if backend == "ray" and not address:
             r.problem("address", "missing: the ray backend connects to an existing cluster (host:port of its head, "
                                  "or 'auto' on a node of the cluster)")
+        n_jobs = r.value("n_jobs", 1)
+        if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
+            r.problem("n_jobs", f"must be a positive integer or -1 (one worker per core), got {n_jobs!r}")
+            n_jobs = 1
         r.done()
-        return cls(backend or "processes", address)
+        return cls(backend or "processes", address, int(n_jobs))
+
+    @property
+    def workers(self) -> int:
+        """n_jobs with -1 resolved to this host's cores."""
+        return (os.cpu_count() or 1) if self.n_jobs == -1 else self.n_jobs
+
+    def with_jobs(self, n_jobs: int | None) -> "ParallelConfig":
+        """The same backend with another worker count (None: unchanged); ConfigError naming `parallel.n_jobs` for a
+        bad one."""
+        if n_jobs is None:
+            return self
+        if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
+            raise ConfigError("parallel.n_jobs", f"must be a positive integer or -1 (one worker per core), got "
+                                                 f"{n_jobs!r}")
+        return replace(self, n_jobs=int(n_jobs))
 
     @classmethod
     def from_resolved(cls, cfg: Any, problems: Problems | None = None) -> "ParallelConfig":
@@ -76,7 +100,8 @@ class ParallelConfig:
 INPROCESS = ParallelConfig("inprocess")
 
 
-def run_ordered(fn: Callable[..., R], items: Sequence[T], n_jobs: int = 1, parallel: ParallelConfig | None = None, *,
+def run_ordered(fn: Callable[..., R], items: Sequence[T], n_jobs: int | None = None,
+                parallel: ParallelConfig | None = None, *,
                 progress: Callable[[T, R], None] | None = None, messages: Callable[[str], None] | None = None,
                 initializer: Callable[[], None] | None = None, start_method: str = "spawn",
                 preload: Sequence[str] = ()) -> Iterator[tuple[T, R]]:
@@ -89,8 +114,9 @@ def run_ordered(fn: Callable[..., R], items: Sequence[T], n_jobs: int = 1, paral
     process: never — it sets worker-only state). start_method: the processes backend's, spawn or forkserver (never
     fork, see the module docstring); `preload`: modules the fork server imports once, so its workers start in
     milliseconds (forkserver only; spawn where the OS lacks it). A job's exception is raised here (its own type,
-    e.g. InputError); the jobs not yet started are cancelled."""
+    e.g. InputError); the jobs not yet started are cancelled. n_jobs: the worker processes (None: `parallel`'s)."""
     parallel = parallel or ParallelConfig()
+    n_jobs = parallel.workers if n_jobs is None else n_jobs
     items = list(items)
     if parallel.backend == "ray" and items:
         yield from _run_ray(fn, items, parallel.address, progress, messages, initializer)
@@ -335,7 +361,8 @@ def _drain_ray(q, messages) -> None:
         messages(line)
 
 
-def collect_all(fn: Callable[..., R], items: Iterable[T], n_jobs: int = 1, parallel: ParallelConfig | None = None,
+def collect_all(fn: Callable[..., R], items: Iterable[T], n_jobs: int | None = None,
+                parallel: ParallelConfig | None = None,
                 **kwargs) -> list[R]:
     """`fn(item)` for every item, in order (`run_ordered`'s results only)."""
     return [r for _, r in run_ordered(fn, list(items), n_jobs, parallel, **kwargs)]

@@ -31,13 +31,13 @@ TINY_COLLECT = {
     "world": {"cities": {"train": "small", "validation": "small"}, "city_dir": None,
               "render": {"width": 64, "height": 48, "hfov_deg": 70.0}},
     "collect": {"reference_controller": "agae", "initial_gain_db": 0.0, "initial_exposure_us": 5000.0,
-                "warmup_frames": 2, "sensor_randomisation": 0.15, "n_jobs": 2,
+                "warmup_frames": 2, "sensor_randomisation": 0.15,
                 "splits": {"train": {"first_traversal": 0, "n_sequences": 1, "frames": 6},
                            "validation": {"first_traversal": 5, "n_sequences": 1, "frames": 5}, "test": None}},
     "controllers": {"agae": {"damping": 0.2}},
 }
 FEATURES = {"frontends": ["orb", "viso"], "orb": {"working_size": None, "count_nfeatures": 400,
-                                                  "match_nfeatures": 200}, "n_jobs": 2, "seed": 3}
+                                                  "match_nfeatures": 200}, "seed": 3}
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +70,7 @@ def test_collect_features_evaluate_on_a_two_node_ray_cluster_match_processes(ray
     # A client on this host without the cluster's token must be refused: started now, it waits out Ray's ~20 s of
     # retries while the rest of the test runs.
     refused = _connect_without_token(ray_address)
-    backends = {"processes": ParallelConfig("processes"), "ray": ParallelConfig("ray", ray_address),
+    backends = {"processes": ParallelConfig("processes", n_jobs=2), "ray": ParallelConfig("ray", ray_address),
                 "inprocess": ParallelConfig("inprocess")}
 
     # collect: two sequences; the per-frame progress lines come back from the Ray workers too
@@ -82,7 +82,7 @@ def test_collect_features_evaluate_on_a_two_node_ray_cluster_match_processes(ray
     for name, parallel in backends.items():
         cfg = copy.deepcopy(TINY_COLLECT)
         cfg["world"]["city_dir"] = str(city_dir)
-        cfg["parallel"] = {"backend": parallel.backend, "address": parallel.address}
+        cfg["parallel"] = {"backend": parallel.backend, "address": parallel.address, "n_jobs": parallel.n_jobs}
         inputs = CollectInputs.from_resolved(cfg)
         assert inputs.parallel == parallel
         raw[name], lines[name] = tmp_path / f"raw_{name}", []
@@ -109,7 +109,7 @@ def test_collect_features_evaluate_on_a_two_node_ray_cluster_match_processes(ray
     outputs = {}
     for name, parallel in backends.items():
         root = tmp_path / f"eval_{name}"
-        cfg = make_fixture_project(root, controllers=["agae", "learned"], n_jobs=2)
+        cfg = make_fixture_project(root, controllers=["agae", "learned"])
         result = evaluate(EvaluationInputs.from_resolved(cfg), root, parallel=parallel)
         assert len(result.runs) == 4
         write_outputs(result, root / "reports")

@@ -66,7 +66,7 @@ def test_runs_of_one_window_share_a_worker_and_come_back_in_job_order(tmp_path):
     assert len(windows) == 2  # test: the entry and the exit window
     # controller-major, as evaluate plans them: windows interleave
     plan = [RunJob(w, c, inputs, sumlog, jobs[0].model_path) for c in ("agae", "fixed") for w in windows]
-    got = list(run_jobs(plan, 1, False))
+    got = list(run_jobs(plan, False))
     assert [job.run_id for job, _ in got] == [job.run_id for job in plan]
     for job, (rows, summary, _) in got:
         assert summary["run_id"] == job.run_id and {r["controller"] for r in rows} == {job.controller}

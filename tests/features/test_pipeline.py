@@ -23,7 +23,7 @@ from expoctl.features.pipeline import (
 from expoctl.io import write_png
 
 ORB = {"working_size": None, "count_nfeatures": 400, "match_nfeatures": 200}
-PARAMS = {"frontends": ["orb"], "orb": ORB, "n_jobs": 1, "seed": 3}
+PARAMS = {"frontends": ["orb"], "orb": ORB, "seed": 3}
 W, H = 240, 180
 
 
@@ -190,7 +190,7 @@ def test_bad_frames_table(tmp_path, mutate, message):
     [
         ({"frontends": ["sift"]}, "features.frontends"),
         ({"frontends": "orb"}, "features.frontends"),
-        ({"n_jobs": 0}, "features.n_jobs"),
+        ({"n_jobs": 2}, "features.n_jobs"),  # moved to parallel.n_jobs (2026-12-07)
         ({"threads": 2}, "features.threads"),
         ({"orb": {"nfeatures": 10}}, "features.orb.nfeatures"),
     ],

@@ -106,14 +106,16 @@ def test_repro_noop_and_per_key_rerun(project_copy):
     second = p.dvc("repro")
     assert _ran(second.stdout) == {"guard"}, second.stdout
 
-    # Where the jobs run is not a result: the finished run pointed at a Ray cluster re-runs nothing but compose, which
-    # writes the new `parallel` block into configs/resolved.yaml. No stage declares it as a param (it is a runtime key,
-    # stages/table.py), so `dvc status` then has nothing to re-run, and the cluster is never contacted.
-    p.set_overrides(fixture_manifest.OVERRIDES + ["parallel.backend=ray", "parallel.address=127.0.0.1:1"])
+    # Where and how fast the jobs run is not a result: the finished run pointed at a Ray cluster, with another worker
+    # count, re-runs nothing but compose, which writes the new `parallel` block into configs/resolved.yaml. No stage
+    # declares it as a param (a runtime key, stages/table.py), so `dvc status` then has nothing to re-run, and the
+    # cluster is never contacted.
+    p.set_overrides(fixture_manifest.OVERRIDES + ["parallel.backend=ray", "parallel.address=127.0.0.1:1",
+                                                  "parallel.n_jobs=2"])
     moved = p.dvc("repro")
     assert _ran(moved.stdout) == {"guard", "compose"}, moved.stdout
     resolved = yaml.safe_load((p.root / "configs" / "resolved.yaml").read_text())
-    assert resolved["parallel"] == {"backend": "ray", "address": "127.0.0.1:1"}
+    assert resolved["parallel"] == {"backend": "ray", "address": "127.0.0.1:1", "n_jobs": 2}
     assert _status_stages(p.dvc("status").stdout) <= {"guard"}  # guard is always changed, by design
 
     # Switching iteration 3 off re-runs exactly the iteration-3 stages and the selection; evaluate re-runs exactly when

@@ -154,7 +154,7 @@ def test_probe_candidates_in_worker_processes_equal_in_process(probe, tmp_path):
     from pathlib import Path
 
     from expoctl.evaluation.inputs import EvaluationInputs
-    from expoctl.parallel import INPROCESS
+    from expoctl.parallel import INPROCESS, ParallelConfig
     from expoctl.selection.model_selection import Candidate, probe_candidates
 
     p, cfg = probe
@@ -164,10 +164,9 @@ def test_probe_candidates_in_worker_processes_equal_in_process(probe, tmp_path):
     second = tmp_path / "controller2.pt"
     shutil.copy(model, second)
     cands = [Candidate("iteration1", 1, model), Candidate("iteration2", 2, second)]
-    cfg = {**cfg, "evaluate": {**cfg["evaluate"], "n_jobs": 2}}
     inputs = EvaluationInputs.from_resolved(cfg)
     pcfg = dataclasses.replace(p.cfg, offsets_ev=(6.0,))
     here = probe_candidates(inputs, cands, model.parents[1], pcfg, INPROCESS)
-    workers = probe_candidates(inputs, cands, model.parents[1], pcfg)
+    workers = probe_candidates(inputs, cands, model.parents[1], pcfg, ParallelConfig("processes", n_jobs=2))
     assert list(workers) == ["iteration1", "iteration2"] and workers == here
     assert here["iteration1"] == here["iteration2"]  # the same network, so the same verdict

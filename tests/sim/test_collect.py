@@ -23,7 +23,6 @@ TINY = {
         "initial_exposure_us": 5000.0,
         "warmup_frames": 2,
         "sensor_randomisation": 0.15,
-        "n_jobs": 1,
         "splits": {
             "train": {"first_traversal": 0, "n_sequences": 1, "frames": 6},
             "validation": {"first_traversal": 5, "n_sequences": 1, "frames": 5},
@@ -134,7 +133,7 @@ def test_progress_lines_while_a_sequence_renders(tiny_run, tmp_path, city_dir):
 def test_process_pool_gives_the_same_bytes(tiny_run, tmp_path, city_dir):
     out, _ = tiny_run
     cfg = tiny(city_dir)
-    cfg["collect"]["n_jobs"] = 2
+    cfg["parallel"] = {"n_jobs": 2}
     again = tmp_path / "again"
     lines: list[str] = []
     collect(CollectInputs.from_resolved(cfg), again, progress=lines.append, progress_every_s=0.0)

@@ -22,7 +22,7 @@ def test_stage_writes_raw_dir_and_logs(tmp_path, caplog):
         "world": {"cities": {"train": "small"}, "city_dir": str(tmp_path / "cities"),
                   "render": {"width": 48, "height": 32}},
         "collect": {"reference_controller": "agae", "initial_gain_db": 0.0, "initial_exposure_us": 5000.0,
-                    "warmup_frames": 1, "sensor_randomisation": 0.1, "n_jobs": 1,
+                    "warmup_frames": 1, "sensor_randomisation": 0.1,
                     "splits": {"train": {"n_sequences": 1, "frames": 3}, "validation": None, "test": None}},
     }
     tracker = FakeTracker()
@@ -52,7 +52,7 @@ def test_iteration2_reference_gate_keeps_a_saturating_network_off_camera_1(tmp_p
     cfg["paths"].update(model=str(tmp_path / "models" / f"{network}.pt"), raw_dir=str(tmp_path / "raw"),
                         reports_dir=str(tmp_path / "reports"))
     cfg["collect"] = {"reference_controller": "agae", "initial_gain_db": 0.0, "initial_exposure_us": 5000.0,
-                      "warmup_frames": 0, "sensor_randomisation": 0.0, "n_jobs": 1,
+                      "warmup_frames": 0, "sensor_randomisation": 0.0,
                       "splits": {"train": {"n_sequences": 1, "frames": 4}, "validation": None, "test": None}}
     cfg["iteration2"] = {"enabled": True, "reference_gate": "probe", "collect": {"reference_controller": "learned"},
                          "paths": {"raw_dir": str(tmp_path / "raw2"), "reports_dir": str(tmp_path / "reports2")}}
@@ -138,7 +138,7 @@ def test_a_bad_reference_network_stops_a_later_iteration_first(tmp_path, monkeyp
         expected = f"{net.with_suffix('.onnx')}: ONNX export missing"
     cfg["paths"].update(model=str(net), raw_dir=str(tmp_path / "raw"))
     cfg["collect"] = {"reference_controller": "agae", "initial_gain_db": 0.0, "initial_exposure_us": 5000.0,
-                      "warmup_frames": 0, "sensor_randomisation": 0.0, "n_jobs": 1,
+                      "warmup_frames": 0, "sensor_randomisation": 0.0,
                       "splits": {"train": {"n_sequences": 1, "frames": 4}, "validation": None, "test": None}}
     cfg["iteration2"] = {"enabled": True, "reference_gate": "probe", "collect": {"reference_controller": "learned"},
                          "paths": {"raw_dir": str(tmp_path / "raw2"), "reports_dir": str(tmp_path / "reports2")}}

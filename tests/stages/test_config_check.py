@@ -99,7 +99,21 @@ def test_later_iteration_blocks_are_checked(overrides, problems):
 
 
 def test_a_base_collect_problem_is_not_repeated_under_each_iteration():
-    assert problems_of(["collect.n_jobs=0"]) == [("collect.n_jobs", "must be an integer >= 1, got 0")]
+    assert problems_of(["collect.warmup_frames=-1"]) == [("collect.warmup_frames", "must be an integer >= 0, got -1")]
+
+
+@pytest.mark.parametrize("group", ["collect", "features", "evaluate"])
+def test_a_stage_worker_count_is_refused_with_where_it_moved(group):
+    """`<group>.n_jobs` became `parallel.n_jobs` (2026-12-07): one worker count, a runtime setting, not a param."""
+    from expoctl.parallel import MOVED_N_JOBS
+
+    assert problems_of([f"+{group}.n_jobs=2"]) == [(f"{group}.n_jobs", f"moved to parallel.n_jobs ({MOVED_N_JOBS})")]
+
+
+@pytest.mark.parametrize("value", ["0", "-2", "two"])
+def test_parallel_n_jobs_is_checked(value):
+    assert problems_of([f"parallel.n_jobs={value}"]) == [
+        ("parallel.n_jobs", f"must be a positive integer or -1 (one worker per core), got {yaml.safe_load(value)!r}")]
 
 
 def test_cities_a_stage_asks_for_must_be_configured():

@@ -49,15 +49,17 @@ def test_runtime_keys_are_logged_but_not_hashed(tmp_path, monkeypatch):
     assert runtime_keys("features") == ["parallel"] and "parallel" not in STAGE_KEYS["features"]
     assert runtime_keys("features_iter@2") == ["parallel"] and runtime_keys("train") == []
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'm.db'}")
-    base = {"features": {"n_jobs": 1}, "plugins": {"frontends": {}}, "numerics": {"mode": "host"},
+    base = {"features": {"seed": 0}, "plugins": {"frontends": {}}, "numerics": {"mode": "host"},
             "paths": {"frames": "f", "features": "x", "matches": "m"}}
     try:
         for backend in ("processes", "ray"):
-            with tracked_run("features", {**base, "parallel": {"backend": backend, "address": "h:1"}}):
+            with tracked_run("features", {**base, "parallel": {"backend": backend, "address": "h:1",
+                                                                "n_jobs": 1 if backend == "ray" else 2}}):
                 pass
         client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'm.db'}")
         runs = client.search_runs([client.get_experiment_by_name("expoctl").experiment_id])
         assert sorted(r.data.params["parallel.backend"] for r in runs) == ["processes", "ray"]
+        assert sorted(r.data.params["parallel.n_jobs"] for r in runs) == ["1", "2"]  # logged, not hashed
         assert {r.data.tags["config_hash"] for r in runs} == {config_hash(select_keys(base, STAGE_KEYS["features"]))}
     finally:
         mlflow.set_tracking_uri(None)

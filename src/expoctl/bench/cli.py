@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="project root: training frames for SumLog, the trained model (default: .)")
     p.add_argument("--traversals", type=int, help="traversals per split (default: the config's, 1)")
     p.add_argument("--model", type=Path, help="the learned network to score (default: the project's final model)")
-    p.add_argument("--n-jobs", type=int, help="worker processes (default: the config's evaluate.n_jobs)")
+    p.add_argument("--n-jobs", type=int, help="worker processes (default: the config's parallel.n_jobs)")
     p.add_argument("--out", type=Path, default=Path("bench"), help="output folder (default: ./bench)")
     p.add_argument("--mlflow-uri", help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
     p.add_argument("--experiment", default=EXPERIMENT, help=f"MLflow experiment (default: {EXPERIMENT})")

@@ -35,6 +35,7 @@ class BenchmarkPlan:
     model_path: str | None           # the learned network scored, or None (no trained model)
     windows: list = field(repr=False, default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)  # {controller: why it is not scored}
+    parallel: Any = None             # ParallelConfig: where the runs go (None: this process)
 
 
 def plan_benchmark(cfg: dict, project_root: str | os.PathLike, candidates: Sequence[str] = (),
@@ -112,8 +113,9 @@ def plan_benchmark(cfg: dict, project_root: str | os.PathLike, candidates: Seque
         cfg.setdefault("controllers", {}).setdefault("learned", {}).pop("checkpoint", None)
     ev = cfg.setdefault("evaluate", {})
     ev["controllers"] = builtins + names
-    if n_jobs is not None:
-        ev["n_jobs"] = int(n_jobs)
+    from expoctl.parallel import ParallelConfig
+
+    parallel = ParallelConfig.from_resolved(cfg).with_jobs(n_jobs)  # the config's `parallel`, --n-jobs over it
     if traversals is not None:
         for plan in (ev.get("splits") or {}).values():
             if isinstance(plan, dict):
@@ -124,7 +126,7 @@ def plan_benchmark(cfg: dict, project_root: str | os.PathLike, candidates: Seque
     ordered = tuple(n for n in controller_names(opt_in=True) if n in inputs.evaluate.controllers)
     ordered += tuple(n for n in inputs.evaluate.controllers if n not in ordered)
     return BenchmarkPlan(inputs, ordered, tuple(names), references,
-                         None if model_path is None else str(model_path), windows, skipped)
+                         None if model_path is None else str(model_path), windows, skipped, parallel)
 
 
 def reference_names(names: Sequence[str]) -> tuple[str, ...]:
@@ -147,11 +149,13 @@ def run_benchmark(plan: BenchmarkPlan, project_root: str | os.PathLike = ".", pr
                   parallel=None, bound: bool = False) -> BenchmarkOutcome:
     """Drive every controller of `plan` over its windows (evaluate's `evaluate_windows`) and aggregate; with `bound`,
     also the offline optimum of every window over the grid of `evaluate.offline_bound` (default: the oracle's
-    ladder; docs/evaluation.md, The offline bound)."""
+    ladder; docs/evaluation.md, The offline bound). `parallel`: where the runs go (default: the plan's, the config's
+    `parallel` block with --n-jobs over it)."""
     from expoctl.evaluation.runner import evaluate_windows, tune_sumlog_params
     from expoctl.features.sumlog import SumLogParams
 
     inputs = plan.inputs
+    parallel = plan.parallel if parallel is None else parallel
     frames = Path(project_root) / inputs.frames_path if inputs.frames_path else None
     if frames is not None and frames.is_file():
         sumlog = tune_sumlog_params(inputs, project_root, inputs.evaluate.sumlog_pairs)

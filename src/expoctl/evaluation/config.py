@@ -16,6 +16,7 @@ from expoctl.config_reader import Problems, Section, is_integer, param, read_con
 from expoctl.controllers.base import Settings
 from expoctl.controllers.registry import CONTROLLERS
 from expoctl.features.registry import FRONTENDS
+from expoctl.parallel import MOVED_N_JOBS
 from expoctl.vo.local_map import MapTrackerConfig
 
 ROUTE_SPLITS = ("validation", "test")
@@ -103,7 +104,6 @@ class EvaluateConfig:
     thumb_width: int = 128
     thumb_every: int = 2
     thumb_span_s: float = 2.5
-    n_jobs: int = 1
     # the offline optimum over a candidate grid (expoctl.evaluation.offline_bound), written to reports/eval/offline_bound.json
     offline_bound: OfflineBoundParams = OfflineBoundParams()
 
@@ -125,7 +125,8 @@ class EvaluateConfig:
         splits.done()
         ints = {name: r.integer(name, getattr(cls, name), min=lo) for name, lo in (
             ("warmup_frames", 0), ("sumlog_pairs", 1), ("min_section_frames", 1), ("thumb_width", 16),
-            ("thumb_every", 1), ("n_jobs", 1))}
+            ("thumb_every", 1))}
+        r.moved("n_jobs", "parallel.n_jobs", MOVED_N_JOBS)
         size = r.value("render_size", None)
         if size is not None and not (isinstance(size, (list, tuple)) and len(size) == 2
                                      and all(is_integer(v) and 16 <= v <= 8192 for v in size)):

@@ -366,7 +366,7 @@ def evaluate_bounds(inputs, windows, sumlog: dict, parallel=None) -> dict:
     cfg = inputs.evaluate.offline_bound
     candidates = cfg.candidates(inputs.controller_config("oracle"))
     jobs = [(inputs, w, sumlog if cfg.sumlog else None, candidates) for w in windows]
-    results = [r for _job, r in run_ordered(_bound_job, jobs, inputs.evaluate.n_jobs, parallel)]
+    results = [r for _job, r in run_ordered(_bound_job, jobs, None, parallel)]
     render = inputs.render
     return {
         "grid": {"label": grid_label(candidates),

@@ -3,7 +3,7 @@
 Plan: for each route split (validation: world.cities.validation; test: world.cities.test), `n_traversals` traversals
 (their own speed, sun, sky; seeds disjoint from `collect`'s), and in each the configured windows around tunnels
 (`expoctl.evaluation.config`). One *run* = (window, controller); every controller of a window gets the same scene,
-sensor parameters, fixed-pattern noise and per-frame noise seeds. Runs fan out over worker processes (`n_jobs`) or a
+sensor parameters, fixed-pattern noise and per-frame noise seeds. Runs fan out over worker processes (`parallel.n_jobs`) or a
 Ray cluster (`expoctl.parallel`); their results are gathered in plan order whatever the order they finish in.
 
 SumLog: its parameters are tuned here, once per front end, before the fan-out, on sequential camera-1 pairs of the
@@ -376,7 +376,7 @@ def evaluate_windows(inputs: EvaluationInputs, windows: list[Window], sumlog: di
     rows: list[dict] = []
     summaries: list[dict] = []
     thumbs: dict[str, dict] = {}
-    for job, (r, s, tb) in run_jobs(jobs, inputs.evaluate.n_jobs, progress, parallel):
+    for job, (r, s, tb) in run_jobs(jobs, progress, parallel):
         rows.extend(r)
         summaries.append(s)
         thumbs[job.run_id] = tb
@@ -412,11 +412,12 @@ def write_outputs(result: EvaluationResult, reports_dir: str | os.PathLike) -> d
     return {"metrics": reports_dir / "metrics.json", "eval_dir": eval_dir}
 
 
-def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool,
+def run_jobs(jobs: list[RunJob], progress: bool = False,
              parallel: ParallelConfig | None = None) -> Iterator[tuple[RunJob, tuple]]:
     """(job, (rows, summary, thumbnails)) for every job, in the order of `jobs`. The jobs of one window go to one
     worker together (`run_window`: rendered once, driven in lockstep); windows fan out where `parallel` says
-    (`expoctl.parallel`; default n_jobs spawned worker processes, one thread each, or this process when n_jobs <= 1).
+    (`expoctl.parallel`: `parallel.n_jobs` spawned worker processes, one thread each, or this process when it is 1,
+    the default).
     """
     from tqdm import tqdm
 
@@ -429,7 +430,7 @@ def run_jobs(jobs: list[RunJob], n_jobs: int, progress: bool,
     following = 0
     with tqdm(total=len(jobs), desc="evaluate", unit="run", disable=not progress) as bar:
         windows = [tuple(jobs[i] for i in ix) for ix in order]
-        for (ix, (_group, results)) in zip(order, run_ordered(run_window, windows, n_jobs, parallel,
+        for (ix, (_group, results)) in zip(order, run_ordered(run_window, windows, None, parallel,
                                                                  progress=lambda g, _r: bar.update(len(g)))):
             done.update(zip(ix, results))
             while following in done:  # the caller aggregates in job order: hand on every job that is complete

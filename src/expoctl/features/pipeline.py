@@ -23,12 +23,12 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from expoctl.config_reader import Problems, Section, is_integer
-from expoctl.errors import ConfigError, InputError
+from expoctl.config_reader import Problems, Section
+from expoctl.errors import InputError
 from expoctl.features.frontend import PairCounts
 from expoctl.features.registry import FRONTENDS, frontend, frontend_names, make_frontend
 from expoctl.features.sumlog import SumLogGrid
-from expoctl.parallel import ParallelConfig, run_ordered
+from expoctl.parallel import MOVED_N_JOBS, ParallelConfig, run_ordered
 from expoctl.raw.format import decode_8bit_image
 
 FRAMES_COLUMNS = ("sequence", "frame_id", "camera", "image_path")
@@ -44,7 +44,6 @@ class FeaturesConfig:
 
     frontends: tuple[str, ...] = field(default_factory=frontend_names)  # null in the config: every registered one
     configs: Mapping[str, Any] = field(default_factory=dict)  # front-end name -> its typed config, every registered
-    n_jobs: int = 1
     seed: int = 0
     sumlog: SumLogGrid = SumLogGrid()  # SumLog tuning grid (sumlog.tune_sumlog); not used by compute_features
 
@@ -64,14 +63,11 @@ class FeaturesConfig:
             sub = r.section(name)
             configs[name] = sub.read(frontend(name).config)
             sub.done()
-        n_jobs = r.value("n_jobs", 1)
-        if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
-            r.problem("n_jobs", f"must be a positive integer or -1 (all cores), got {n_jobs!r}")
-            n_jobs = 1
+        r.moved("n_jobs", "parallel.n_jobs", MOVED_N_JOBS)
         seed = r.integer("seed", 0)
         sumlog = SumLogGrid.from_dict(r.value("sumlog", None), r.path("sumlog"), r.problems)
         r.done()
-        return cls(frontends, configs, n_jobs, seed, sumlog)
+        return cls(frontends, configs, seed, sumlog)
 
 
 def read_grey(path: str | os.PathLike) -> np.ndarray:
@@ -237,20 +233,17 @@ def compute_features(
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(features_df, matches_df) for every image and every consecutive pair of the frames table.
 
-    params: the `features` config group (dict) or a FeaturesConfig. n_jobs: worker processes (None → params'
-    n_jobs; -1 → all cores; 1 → in this process). parallel: where the sequences run (default: worker processes on
-    this host); never changes a result. Bad input raises InputError naming the file/sequence/frame.
+    params: the `features` config group (dict) or a FeaturesConfig. parallel: where the sequences run and how many
+    worker processes (`parallel.n_jobs`; default: this process); never changes a result. n_jobs: another worker
+    count than parallel's (-1 → all cores; 1 → in this process). Bad input raises InputError naming the
+    file/sequence/frame.
     """
     cfg = params if isinstance(params, FeaturesConfig) else FeaturesConfig.from_dict(params)
     for name in cfg.frontends:  # build each front end once before any work (a plugin's constructor may refuse)
         make_frontend(name, cfg.config(name))
-    n_jobs = cfg.n_jobs if n_jobs is None else n_jobs
-    if n_jobs == -1:
-        n_jobs = os.cpu_count() or 1
-    if not isinstance(n_jobs, int) or n_jobs < 1:
-        raise ConfigError("features.n_jobs", f"must be a positive integer or -1, got {n_jobs!r}")
+    parallel = (parallel or ParallelConfig()).with_jobs(n_jobs)
     tasks = _plan(frames_df, Path(project_root), cfg)
-    results = _run_tasks(tasks, n_jobs, progress, parallel)
+    results = _run_tasks(tasks, parallel.workers, progress, parallel)
     feature_rows = [row for feats, _ in results for row in feats]
     match_rows = [row for _, matches in results for row in matches]
     features = pd.DataFrame(feature_rows, columns=FEATURES_COLUMNS)

@@ -171,7 +171,7 @@ def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], 
                      pcfg: ProbeConfig, parallel: ParallelConfig | None = None) -> dict[str, dict]:
     """The saturation probe's result for each candidate (`SaturationProbe.run`), each network built as evaluate
     builds it (controllers.learned's keys with the candidate's checkpoint). The candidates fan out as evaluate's runs
-    do (`evaluate.n_jobs`, `parallel`); a worker builds the probe's scene and AG+AE reference once."""
+    do (`parallel`, its n_jobs); a worker builds the probe's scene and AG+AE reference once."""
     from expoctl.parallel import run_ordered
     from expoctl.selection.saturation_probe import ProbeJob, make_probe, probe_job
 
@@ -187,7 +187,7 @@ def probe_candidates(inputs: EvaluationInputs, candidates: Sequence[Candidate], 
         make_probe(pcfg, inputs.world, inputs.rig, inputs.sensor, agae, root)
     jobs = [ProbeJob(pcfg, inputs.world, inputs.rig, inputs.sensor, agae, root, c.name,
                      replace(learned, checkpoint=str(Path(c.path).resolve()))) for c in candidates]
-    return {job.name: result for job, result in run_ordered(probe_job, jobs, inputs.evaluate.n_jobs, parallel)}
+    return {job.name: result for job, result in run_ordered(probe_job, jobs, None, parallel)}
 
 
 def probe_filter(candidates: Sequence[Candidate], results: dict[str, dict]) -> list[Candidate]:
@@ -237,7 +237,7 @@ def select_model(inputs: EvaluationInputs, scfg: SelectConfig, candidates: Seque
     if scfg.reference is not None:
         jobs += [RunJob(w, scfg.reference, inputs, sumlog, label=scfg.reference) for w in windows]
     rows, summaries = [], []
-    for job, (r, s, _thumbs) in run_jobs(jobs, ecfg.n_jobs, progress, parallel):
+    for job, (r, s, _thumbs) in run_jobs(jobs, progress, parallel):
         rows.extend({**row, "candidate": job.label} for row in r)  # run_id is already job.run_id (named by label)
         summaries.append({**s, "candidate": job.label})
     frames = add_section_ids(pd.DataFrame(rows))

@@ -34,7 +34,7 @@ from expoctl.camera.sensor import SensorConfig
 from expoctl.config_reader import Problems, Section, read_seed
 from expoctl.controllers.base import Settings
 from expoctl.errors import ConfigError
-from expoctl.parallel import ParallelConfig, run_ordered
+from expoctl.parallel import MOVED_N_JOBS, ParallelConfig, run_ordered
 from expoctl.raw.format import SequenceWriter
 from expoctl.sim.closed_loop import RigConfig, RouteScene, clip_sections, make_sensors, rig_metadata, run_closed_loop
 from expoctl.world.city import WorldConfig
@@ -64,7 +64,6 @@ class CollectConfig:
     initial_exposure_us: float
     warmup_frames: int
     sensor_randomisation: float
-    n_jobs: int
     splits: dict[str, SplitConfig]
     source: str = "simulator"
 
@@ -78,10 +77,10 @@ class CollectConfig:
                                          unit="µs"),
             warmup_frames=r.integer("warmup_frames", min=0),
             sensor_randomisation=r.number("sensor_randomisation", min=0.0, max=0.5),  # spec: 0.1–0.2
-            n_jobs=r.integer("n_jobs", min=1),
             splits=_splits(r.section("splits", required=True)),
             source=r.choice("source", SOURCES, "simulator"),
         )
+        r.moved("n_jobs", "parallel.n_jobs", MOVED_N_JOBS)
         r.done()
         return cfg
 
@@ -222,7 +221,7 @@ def collect(inputs: CollectInputs, out_dir: str | os.PathLike, progress: bool | 
 
     with atomic_dir(out_dir) as tmp_root:
         lines = progress if callable(progress) else None
-        summaries = list(_run_jobs(inputs, jobs, tmp_root, inputs.collect.n_jobs, progress is True, lines,
+        summaries = list(_run_jobs(inputs, jobs, tmp_root, progress is True, lines,
                                    progress_every_s, done))
     order = {j.name: i for i, j in enumerate(jobs)}
     return sorted(summaries, key=lambda s: order[s["sequence"]])
@@ -336,7 +335,7 @@ def reference_controller_config(controllers: Section, name: str | None, key: str
     return config
 
 
-def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs: int, progress: bool,
+def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, progress: bool,
               lines: Callable[[str], None] | None = None, every_s: float = PROGRESS_EVERY_S,
               done: Callable[[dict], None] | None = None) -> Iterator[dict]:
     """Each sequence's summary, in plan order, rendered where `inputs.parallel` says (`expoctl.parallel`). `lines`:
@@ -346,7 +345,7 @@ def _run_jobs(inputs: CollectInputs, jobs: list[SequenceJob], root: Path, n_jobs
 
     tasks = [_SequenceTask(inputs, job, str(root), every_s) for job in jobs]
     with tqdm(total=len(jobs), desc="collect", unit="seq", disable=not progress) as bar:
-        for _, summary in run_ordered(_collect_task if lines is not None else _collect_task_quiet, tasks, n_jobs,
+        for _, summary in run_ordered(_collect_task if lines is not None else _collect_task_quiet, tasks, None,
                                       inputs.parallel, progress=lambda _t, s: (bar.update(), done and done(s)),
                                       messages=lines):
             yield summary
