@@ -50,6 +50,13 @@ CONNECT_TIMEOUT_S = 5.0
 _POLL_S = 0.5  # how often waiting for jobs also forwards worker messages
 
 
+def _bad_jobs(n_jobs: Any) -> str | None:
+    """What is wrong with a worker count (None: nothing)."""
+    if is_integer(n_jobs) and (n_jobs >= 1 or n_jobs == -1):
+        return None
+    return f"must be a positive integer or -1 (one worker per core), got {n_jobs!r}"
+
+
 @dataclass(frozen=True)
 class ParallelConfig:
     """Config group `parallel` (conf/parallel/default.yaml): where the jobs run. It never changes a result."""
@@ -69,8 +76,8 @@ class ParallelConfig:
             r.problem("address", "missing: the ray backend connects to an existing cluster (host:port of its head, "
                                  "or 'auto' on a node of the cluster)")
         n_jobs = r.value("n_jobs", 1)
-        if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
-            r.problem("n_jobs", f"must be a positive integer or -1 (one worker per core), got {n_jobs!r}")
+        if _bad_jobs(n_jobs):
+            r.problem("n_jobs", _bad_jobs(n_jobs))
             n_jobs = 1
         r.done()
         return cls(backend or "processes", address, int(n_jobs))
@@ -85,9 +92,8 @@ class ParallelConfig:
         bad one."""
         if n_jobs is None:
             return self
-        if not is_integer(n_jobs) or not (n_jobs >= 1 or n_jobs == -1):
-            raise ConfigError("parallel.n_jobs", f"must be a positive integer or -1 (one worker per core), got "
-                                                 f"{n_jobs!r}")
+        if _bad_jobs(n_jobs):
+            raise ConfigError("parallel.n_jobs", _bad_jobs(n_jobs))
         return replace(self, n_jobs=int(n_jobs))
 
     @classmethod
