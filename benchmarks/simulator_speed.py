@@ -2,7 +2,8 @@
 
 Usage: .venv/bin/python benchmarks/simulator_speed.py [--frames 12] [--width 640] [--height 480] [--threads 0] [--skip-stages]
                                                     [--portal-daylight exact|light_map]
-                                                    [--baseline OLD_SRC] [--backend numba|egl|both]
+                                                    [--baseline OLD_SRC [--baseline-label COMMIT]] [--out FILE]
+                                                    [--backend numba|egl|both]
                                                     [--sizes 640x480,320x240] [--lp-threads N]
 Prints a table of medians over frames and writes benchmarks/results/simulator_speed.json.
 --backend egl: the same table for the OpenGL backend (gl_renderer.GLRenderer on headless EGL).
@@ -10,6 +11,7 @@ Prints a table of medians over frames and writes benchmarks/results/simulator_sp
 + 5 ms fast blur, + glare, + sensor), with egl/numba ratios and frames/s per camera; writes
 benchmarks/results/simulator_speed_backends.json (--backend egl writes simulator_speed_egl.json).
 --lp-threads: LP_NUM_THREADS for Mesa llvmpipe (set before the GL context exists; default: llvmpipe's own).
+--out FILE: where the stage table's JSON goes; --baseline-label: what OLD_SRC is (a commit), recorded in it.
 --baseline OLD_SRC: also time another version of the code (a `src` directory, e.g. from
 `git archive <commit> src | tar -x -C /tmp/old` → /tmp/old/src) on the same frames, alternating with the current code
 frame by frame, and report both medians, their ratio and whether the images are identical (sharp render, 5 ms blur,
@@ -43,6 +45,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import importlib  # noqa: E402
 import inspect  # noqa: E402
@@ -53,6 +56,7 @@ import tempfile  # noqa: E402
 from expoctl.io import write_json  # noqa: E402
 import expoctl.world  # noqa: E402
 from expoctl.world import Renderer, load_city  # noqa: E402
+from bench_meta import run_metadata  # noqa: E402
 
 
 def _sensor(width, height):
@@ -386,6 +390,9 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=0, help="numba threads (0 = numba default)")
     ap.add_argument("--city", default="train")
     ap.add_argument("--baseline", default=None, help="another version's src dir to time alongside (see docstring)")
+    ap.add_argument("--baseline-label", default=None,
+                    help="what --baseline is (e.g. the commit it was archived from), recorded in the JSON")
+    ap.add_argument("--out", default=None, help="the JSON file of the stage table (default: see docstring)")
     ap.add_argument("--backend", choices=("numba", "egl", "both"), default="numba")
     ap.add_argument("--sizes", default="640x480,320x240", help="--backend both: image sizes WxH, comma-separated")
     ap.add_argument("--lp-threads", type=int, default=0, help="LP_NUM_THREADS for llvmpipe (0 = its default)")
@@ -485,7 +492,7 @@ def main() -> int:
             for name in times:
                 times[name].append(res[name][0])
         med = {name: 1e3 * np.median(np.array(v), axis=0) for name, v in times.items()}
-        baseline = {"src": str(args.baseline), "new_portal_daylight": args.portal_daylight,
+        baseline = {"src": str(args.baseline), "label": args.baseline_label, "new_portal_daylight": args.portal_daylight,
                     "identical": same, "max_rel_luminance_error": worst}
         for j, key in enumerate(FRAME_COLUMNS):
             baseline[key] = {"old_ms": round(float(med["old"][j]), 2), "new_ms": round(float(med["new"][j]), 2),
@@ -504,6 +511,7 @@ def main() -> int:
     }
     if baseline is not None:
         result["baseline"] = baseline
+    result["run"] = run_metadata()
     print(f"simulator speed ({args.backend}), {args.width}x{args.height}, city {args.city}, {len(frames)} frames, "
           f"{result['numba_threads']} numba threads, load avg {result['load_average_1min']:.1f}")
     print(f"{'stage (per camera-frame)':28s} {'median ms':>10s} {'frames/s':>9s}")
@@ -522,9 +530,10 @@ def main() -> int:
             b = baseline[key]
             print(f"  {key:26s} old {b['old_ms']:8.1f} ms  new {b['new_ms']:8.1f} ms  speed-up {b['speedup']:.2f}x")
     print(f"peak python allocations {result['peak_python_alloc_mb']} MB, max RSS {result['max_rss_mb']} MB")
-    out = ROOT / "benchmarks" / "results" / ("simulator_speed_egl.json" if args.backend == "egl" else "simulator_speed.json")
+    out = (Path(args.out).resolve() if args.out else
+           ROOT / "benchmarks" / "results" / ("simulator_speed_egl.json" if args.backend == "egl" else "simulator_speed.json"))
     write_json(result, out)
-    print(f"wrote {out.relative_to(ROOT)}")
+    print(f"wrote {out}")
     return 0
 
 
