@@ -2,11 +2,16 @@
 clone, `/usr/bin/time -v ./run.sh pipeline` (venv and install included, then `dvc repro` at the default scale).
 
 For each commit it records the wall and CPU time and peak RSS from GNU time, each stage's seconds (the MLflow run
-durations in the clone's mlflow.db) and the clone's reports/metrics.json, and merges them into --out keyed by commit,
-so an old and a new commit measured in one session land in one file. The clones stay under --workdir (with
+durations in the clone's mlflow.db), evaluate's seconds summed per controller (reports/eval/runs.parquet), how long
+collect took to reach numba's cached renderer (its cold build) and the clone's reports/metrics.json. It merges them
+into --out under "<commit>@<start time>", so an old and a new commit measured in one session land in one file and a
+commit re-measured on another day or host is a new record, not an overwrite. The clones stay under --workdir (with
 --workdir/shared pointing at ../shared, as the project expects) for inspection.
 
     .venv/bin/python benchmarks/pipeline_side_by_side.py f21af75 HEAD
+
+--record CLONE records a clone whose `./run.sh pipeline` finished without this script (a session ended while the
+driver waited on it): the same fields, from the clone's files, with `meta.recorded_after: true`.
 
 Nothing else should run meanwhile: the pipeline uses both cores.
 """
@@ -80,10 +85,66 @@ def run_commit(commit: str, workdir: Path) -> dict:
     elapsed = time.perf_counter() - t0
     if proc.returncode != 0:
         raise SystemExit(f"pipeline_side_by_side: {commit} ({sha[:9]}) failed with exit {proc.returncode}; see {log}")
-    metrics = json.loads((clone / "reports" / "metrics.json").read_text())
-    return {"commit": sha, "started_utc": started, "elapsed_s": round(elapsed, 1),
-            **parse_time_v((clone / "time_v.txt").read_text()),
-            "stage_seconds": stage_seconds(clone / "mlflow.db"), "metrics": metrics}
+    return {**clone_record(clone, sha, started), "elapsed_s": round(elapsed, 1)}
+
+
+def evaluate_seconds_by_controller(runs_parquet: Path) -> dict[str, float]:
+    """Closed-loop seconds of evaluate's runs summed per controller, plus their total: where the stage's time went
+    (the stage's own wall time also holds start-up, fan-out waits and the report of its runs)."""
+    import pandas as pd
+
+    runs = pd.read_parquet(runs_parquet, columns=["controller", "seconds"])
+    sums = runs.groupby("controller")["seconds"].sum()
+    out = {str(c): round(float(v), 1) for c, v in sums.items()}
+    out["all runs"] = round(float(runs["seconds"].sum()), 1)
+    return out
+
+
+def renderer_cold_build_s(clone: Path) -> float | None:
+    """Seconds from collect's start (MLflow) to the write of numba's cache index of shade.render_kernel in the clone:
+    the renderer's cold build, plus collect's few seconds of start-up before its first render. None when the clone
+    has no such index (its renderer was built elsewhere)."""
+    index = sorted((clone / "src" / "expoctl" / "world" / "__pycache__").glob("shade.render_kernel-*.nbi"))
+    if not index:
+        return None
+    con = sqlite3.connect(clone / "mlflow.db")
+    try:
+        row = con.execute("SELECT MIN(start_time) FROM runs WHERE name = 'collect'").fetchone()
+    finally:
+        con.close()
+    if row[0] is None:
+        return None
+    return round(index[0].stat().st_mtime - row[0] / 1000, 1)
+
+
+def clone_record(clone: Path, sha: str, started: str) -> dict:
+    """What this benchmark records of a clone whose pipeline finished: GNU time's figures, stage seconds, evaluate's
+    per-controller seconds, the renderer's cold build and the metrics."""
+    return {"commit": sha, "started_utc": started, **parse_time_v((clone / "time_v.txt").read_text()),
+            "stage_seconds": stage_seconds(clone / "mlflow.db"),
+            "evaluate_run_seconds": evaluate_seconds_by_controller(clone / "reports" / "eval" / "runs.parquet"),
+            "renderer_cold_build_s": renderer_cold_build_s(clone),
+            "metrics": json.loads((clone / "reports" / "metrics.json").read_text())}
+
+
+def record_finished_clone(clone: Path) -> dict:
+    """clone_record of a clone left by an earlier, interrupted driver; its start is the first MLflow run's."""
+    for needed in ("time_v.txt", "mlflow.db", "reports/metrics.json", "reports/eval/runs.parquet"):
+        if not (clone / needed).is_file():
+            raise SystemExit(f"pipeline_side_by_side: {clone / needed} is missing: that pipeline did not finish")
+    sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=clone, check=True, capture_output=True,
+                         text=True).stdout.strip()
+    con = sqlite3.connect(clone / "mlflow.db")
+    try:
+        first = con.execute("SELECT MIN(start_time) FROM runs").fetchone()[0]
+    finally:
+        con.close()
+    started = dt.datetime.fromtimestamp(first / 1000, dt.timezone.utc).isoformat(timespec="seconds")
+    return clone_record(clone, sha, started)
+
+
+def record_key(result: dict) -> str:
+    return f"{result['commit']}@{result['started_utc']}"
 
 
 def table(results: dict) -> str:
@@ -91,7 +152,7 @@ def table(results: dict) -> str:
     stages: list[str] = []
     for r in results.values():
         stages += [s for s in r["stage_seconds"] if s not in stages]
-    head = "| | " + " | ".join(c[:9] for c in commits) + " |"
+    head = "| | " + " | ".join(f"{results[c]['commit'][:9]} {results[c]['started_utc'][:10]}" for c in commits) + " |"
     rows = [head, "|---|" + "---:|" * len(commits)]
     rows.append("| whole run, install included (s) | " + " | ".join(f"{results[c]['wall_s']:.0f}" for c in commits) + " |")
     rows.append("| CPU (s) | " + " | ".join(f"{results[c]['cpu_s']:.0f}" for c in commits) + " |")
@@ -103,23 +164,34 @@ def table(results: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("commits", nargs="+", help="git refs of this repository, run in this order")
+    ap.add_argument("commits", nargs="*", help="git refs of this repository, run in this order")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/pipeline_side_by_side"))
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "pipeline_side_by_side.json")
+    ap.add_argument("--record", type=Path, nargs="+", default=[], metavar="CLONE",
+                    help="record clones whose pipeline already finished, instead of running commits")
     args = ap.parse_args()
-    args.workdir.mkdir(parents=True, exist_ok=True)
-    shared = args.workdir / "shared"
-    if not shared.exists():
-        shared.symlink_to((ROOT.parent / "shared").resolve())
+    if bool(args.commits) == bool(args.record):
+        ap.error("give commits to run, or --record CLONE ..., not both and not neither")
     doc = json.loads(args.out.read_text()) if args.out.exists() else {"runs": {}}
-    for commit in args.commits:
-        result = run_commit(commit, args.workdir)
-        result["meta"] = run_metadata()
-        doc["runs"][result["commit"]] = result
+
+    def save(result: dict, meta: dict) -> None:
+        result["meta"] = meta
+        doc["runs"][record_key(result)] = result
         tmp = args.out.with_suffix(".json.tmp")
         tmp.write_text(json.dumps(doc, indent=2) + "\n")
         tmp.replace(args.out)
-        print(f"{commit}: {result['wall_s']:.0f} s wall, {result['cpu_s']:.0f} s CPU", flush=True)
+        print(f"{result['commit'][:9]}: {result['wall_s']:.0f} s wall, {result['cpu_s']:.0f} s CPU", flush=True)
+
+    for clone in args.record:
+        save(record_finished_clone(clone), {**run_metadata(), "recorded_after": True})
+    if args.commits:
+        args.workdir.mkdir(parents=True, exist_ok=True)
+        shared = args.workdir / "shared"
+        if not shared.exists():
+            shared.symlink_to((ROOT.parent / "shared").resolve())
+    for commit in args.commits:
+        result = run_commit(commit, args.workdir)
+        save(result, run_metadata())
     print(table(doc["runs"]))
 
 
