@@ -107,14 +107,21 @@ def renderer_cold_build_s(clone: Path) -> float | None:
     index = sorted((clone / "src" / "expoctl" / "world" / "__pycache__").glob("shade.render_kernel-*.nbi"))
     if not index:
         return None
-    con = sqlite3.connect(clone / "mlflow.db")
+    collect_ms = first_run_start_ms(clone / "mlflow.db", name="collect")
+    if collect_ms is None:
+        return None
+    return round(index[0].stat().st_mtime - collect_ms / 1000, 1)
+
+
+def first_run_start_ms(db: Path, name: str | None = None) -> int | None:
+    """The earliest MLflow run start (ms since the epoch) in the SQLite store, of the runs called `name` if given."""
+    con = sqlite3.connect(db)
     try:
-        row = con.execute("SELECT MIN(start_time) FROM runs WHERE name = 'collect'").fetchone()
+        if name is None:
+            return con.execute("SELECT MIN(start_time) FROM runs").fetchone()[0]
+        return con.execute("SELECT MIN(start_time) FROM runs WHERE name = ?", (name,)).fetchone()[0]
     finally:
         con.close()
-    if row[0] is None:
-        return None
-    return round(index[0].stat().st_mtime - row[0] / 1000, 1)
 
 
 def clone_record(clone: Path, sha: str, started: str) -> dict:
@@ -134,11 +141,7 @@ def record_finished_clone(clone: Path) -> dict:
             raise SystemExit(f"pipeline_side_by_side: {clone / needed} is missing: that pipeline did not finish")
     sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=clone, check=True, capture_output=True,
                          text=True).stdout.strip()
-    con = sqlite3.connect(clone / "mlflow.db")
-    try:
-        first = con.execute("SELECT MIN(start_time) FROM runs").fetchone()[0]
-    finally:
-        con.close()
+    first = first_run_start_ms(clone / "mlflow.db")
     started = dt.datetime.fromtimestamp(first / 1000, dt.timezone.utc).isoformat(timespec="seconds")
     return clone_record(clone, sha, started)
 
